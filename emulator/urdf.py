@@ -1,0 +1,136 @@
+"""URDF of the vehicle generated from its description.
+
+Bodies: the chassis (base link), four steering forks (revolute about z at the corners P_i, stops at
+±steering_limit) and four wheels (continuous joint about the axle, offset a outward of the steering axis,
+sphere collision shape — cylinders scrub and lock the steering at rest, see DESIGN.md).
+
+The true parameters (paper Table 2, eq. (18)) are distributed over the bodies so that the paper's
+lumped model sees exactly them at α = 0:
+
+- m_ch = chassis + 4·(fork + wheel) masses;
+- C_l/2 = fork I_zz + wheel transverse inertia + m_wheel·a² for each left unit (likewise C_r);
+- C_ch = chassis I_zz + Σ [m_fork·|P_i|² + m_wheel·(|c_i|² − a²)] at α = 0 (parallel-axis terms; the
+  steering units' own inertia is in C_l, C_r);
+- B_w = wheel inertia about its axle (motor and gear reflected through i_G included).
+
+Away from α = 0 the wheel offset makes the real yaw inertia configuration dependent (≈0.5 % in mode 4 for
+the prototype) — an effect the paper's model neglects.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
+
+from .description import DescriptionError, VehicleDescription
+
+WHEELS = ("fl", "rl", "fr", "rr")
+SIDE_SIGN = {"fl": 1.0, "rl": 1.0, "fr": -1.0, "rr": -1.0}
+
+
+@dataclass(frozen=True)
+class BodyInertias:
+    """Mass properties of the rigid bodies (kg, kg m², about each body's centre of mass)."""
+
+    chassis_mass: float
+    chassis_inertia: tuple[float, float, float]
+    fork_mass: float
+    fork_izz: dict[str, float]
+    wheel_mass: float
+    wheel_inertia: tuple[float, float, float]  # (transverse x, axle y, transverse z)
+
+
+def corner(description: VehicleDescription, wheel: str) -> tuple[float, float]:
+    """Steering axis position P_i in the chassis frame, m (docs/conventions.md)."""
+    g = description.geometry
+    x = g.l / 2 if wheel[0] == "f" else -g.l / 2
+    y = g.b / 2 if wheel[1] == "l" else -g.b / 2
+    return x, y
+
+
+def body_inertias(description: VehicleDescription) -> BodyInertias:
+    """Distribute the truth over the bodies as the module docstring says.
+
+    Raises:
+        DescriptionError: if the body masses leave a negative chassis or fork inertia.
+    """
+    g, t, bd = description.geometry, description.truth, description.body
+    m_f, m_w, i_wt = bd.steering_unit_mass, bd.wheel_mass, bd.wheel_transverse_inertia
+    fork_izz = {}
+    for w in WHEELS:
+        c_side = t.C_l if w[1] == "l" else t.C_r
+        fork_izz[w] = c_side / 2 - i_wt - m_w * g.a**2
+        if fork_izz[w] <= 0:
+            raise DescriptionError(
+                f"{description.source}: steering inertia {c_side} too small for wheel_mass and "
+                f"wheel_transverse_inertia (fork inertia would be {fork_izz[w]:.4g} kg m²)")
+    r2 = (g.l**2 + g.b**2) / 4
+    chassis_izz = t.C_ch - 4 * (m_f * r2 + m_w * (r2 + g.a * g.b))
+    chassis_mass = t.m_ch - 4 * (m_f + m_w)
+    if chassis_izz <= 0:
+        raise DescriptionError(f"{description.source}: C_ch too small for the body masses")
+    length, width, height = g.l + 0.2, g.b, bd.chassis_height
+    ixx = chassis_mass / 12 * (width**2 + height**2)
+    iyy = chassis_mass / 12 * (length**2 + height**2)
+    scale = max(1.0, 1.05 * chassis_izz / (ixx + iyy))  # triangle inequality I_xx + I_yy >= I_zz
+    return BodyInertias(
+        chassis_mass=chassis_mass,
+        chassis_inertia=(ixx * scale, iyy * scale, chassis_izz),
+        fork_mass=m_f,
+        fork_izz=fork_izz,
+        wheel_mass=m_w,
+        wheel_inertia=(i_wt, t.B_w, i_wt),
+    )
+
+
+def _inertial(mass: float, ixx: float, iyy: float, izz: float) -> str:
+    return (f'<inertial><origin xyz="0 0 0"/><mass value="{mass:.10g}"/>'
+            f'<inertia ixx="{ixx:.10g}" iyy="{iyy:.10g}" izz="{izz:.10g}" ixy="0" ixz="0" iyz="0"/>'
+            f'</inertial>')
+
+
+def vehicle_urdf(description: VehicleDescription) -> str:
+    """The vehicle as a URDF document (string). Joint names: ``steer_<w>``, ``wheel_<w>``.
+
+    Joint friction is not in the URDF: the emulator sets viscous damping and Coulomb friction (as a
+    velocity motor with target 0) itself, so both equal the truth exactly.
+    """
+    g, bd = description.geometry, description.body
+    inert = body_inertias(description)
+    length, width, height = g.l + 0.2, g.b, bd.chassis_height
+    parts = [f'<robot name={quoteattr(description.name)}>',
+             '<material name="body"><color rgba="0.25 0.45 0.7 1"/></material>',
+             '<material name="tire"><color rgba="0.1 0.1 0.1 1"/></material>',
+             '<material name="fork"><color rgba="0.8 0.5 0.1 1"/></material>',
+             '<link name="chassis">',
+             _inertial(inert.chassis_mass, *inert.chassis_inertia),
+             f'<visual><origin xyz="0 0 {0.05 + height / 2:.6g}"/><geometry>'
+             f'<box size="{length:.6g} {width:.6g} {height:.6g}"/></geometry>'
+             '<material name="body"/></visual>',
+             '</link>']
+    for w in WHEELS:
+        px, py = corner(description, w)
+        side = SIDE_SIGN[w]
+        izz = inert.fork_izz[w]
+        parts += [
+            f'<joint name="steer_{w}" type="revolute"><parent link="chassis"/><child link="fork_{w}"/>'
+            f'<origin xyz="{px:.10g} {py:.10g} 0"/><axis xyz="0 0 1"/>'
+            f'<limit lower="{-g.steering_limit:.10g}" upper="{g.steering_limit:.10g}" effort="1e6" '
+            f'velocity="100"/></joint>',
+            f'<link name="fork_{w}">',
+            _inertial(inert.fork_mass, max(izz, 0.05), max(izz, 0.05), izz),
+            f'<visual><origin xyz="0 0 0.12"/><geometry><cylinder radius="0.04" length="0.1"/>'
+            '</geometry><material name="fork"/></visual>',
+            '</link>',
+            f'<joint name="wheel_{w}" type="continuous"><parent link="fork_{w}"/>'
+            f'<child link="wheel_{w}"/><origin xyz="0 {side * g.a:.10g} 0"/><axis xyz="0 1 0"/>'
+            '</joint>',
+            f'<link name="wheel_{w}">',
+            _inertial(inert.wheel_mass, *inert.wheel_inertia),
+            f'<visual><origin rpy="{math.pi / 2:.10g} 0 0"/><geometry>'
+            f'<cylinder radius="{g.r:.10g}" length="0.06"/></geometry><material name="tire"/></visual>',
+            f'<collision><geometry><sphere radius="{g.r:.10g}"/></geometry></collision>',
+            '</link>',
+        ]
+    parts.append('</robot>')
+    return "\n".join(parts)
