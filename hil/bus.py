@@ -1,0 +1,83 @@
+"""Bus specification strings → python-can buses.
+
+Grammar: ``INTERFACE[:CHANNEL][@BITRATE]``, e.g. ``"virtual"``, ``"virtual:rig1"``, ``"socketcan:can0"``,
+``"pcan:PCAN_USBBUS1@1M"``, ``"kvaser:0@500k"``. ``INTERFACE`` is a python-can interface name;
+``BITRATE`` is bit/s with an optional ``k``/``M`` suffix. Only ``virtual`` may omit the channel (it
+defaults to :data:`DEFAULT_VIRTUAL_CHANNEL`; all ``virtual`` buses of one process on one channel see
+each other's frames). ``udp_multicast`` is refused: this project never puts CAN traffic on a network.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import can
+
+DEFAULT_VIRTUAL_CHANNEL = "qomni"
+_FORBIDDEN = {"udp_multicast": "it sends frames to a non-loopback multicast address"}
+_BITRATE = re.compile(r"^(\d+(?:\.\d+)?)([kKmM]?)$")
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    """A parsed bus specification: python-can ``interface``, ``channel`` and optional ``bitrate`` [bit/s]."""
+
+    interface: str
+    channel: str
+    bitrate: int | None = None
+
+    def __str__(self) -> str:
+        text = f"{self.interface}:{self.channel}"
+        return text if self.bitrate is None else f"{text}@{self.bitrate}"
+
+
+def parse_bus_spec(spec: str) -> BusSpec:
+    """Parse ``INTERFACE[:CHANNEL][@BITRATE]``.
+
+    Raises:
+        ValueError: empty spec, unknown or forbidden interface, missing channel (all but ``virtual``),
+            or a bitrate that is not a positive number of bit/s (``500000``, ``500k``, ``1M``).
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"bus spec must be a non-empty string like 'virtual' or 'socketcan:can0', got {spec!r}")
+    text = spec.strip()
+    bitrate = None
+    if "@" in text:
+        text, _, rate = text.rpartition("@")
+        bitrate = _parse_bitrate(rate, spec)
+    interface, sep, channel = text.partition(":")
+    interface, channel = interface.strip(), channel.strip()
+    if interface in _FORBIDDEN:
+        raise ValueError(f"bus spec {spec!r}: interface '{interface}' is not allowed: {_FORBIDDEN[interface]}")
+    if interface not in can.interfaces.VALID_INTERFACES:
+        raise ValueError(
+            f"bus spec {spec!r}: unknown interface '{interface}'; expected one of "
+            f"{', '.join(sorted(set(can.interfaces.VALID_INTERFACES) - set(_FORBIDDEN)))}")
+    if not channel:
+        if interface != "virtual" or sep:
+            raise ValueError(f"bus spec {spec!r}: missing channel, write e.g. '{interface}:CHANNEL'")
+        channel = DEFAULT_VIRTUAL_CHANNEL
+    return BusSpec(interface, channel, bitrate)
+
+
+def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
+    """Open the python-can bus described by ``spec``; ``kwargs`` go to ``can.Bus`` unchanged.
+
+    Raises:
+        ValueError: bad spec (see :func:`parse_bus_spec`).
+        can.CanError: the interface could not be opened (driver missing, no such device).
+    """
+    parsed = spec if isinstance(spec, BusSpec) else parse_bus_spec(spec)
+    if parsed.bitrate is not None:
+        kwargs.setdefault("bitrate", parsed.bitrate)
+    return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
+
+
+def _parse_bitrate(text: str, spec: str) -> int:
+    match = _BITRATE.match(text.strip())
+    if not match:
+        raise ValueError(f"bus spec {spec!r}: bitrate '{text}' is not a number of bit/s like 500000, 500k, 1M")
+    value = float(match.group(1)) * {"": 1, "k": 1e3, "m": 1e6}[match.group(2).lower()]
+    if value <= 0 or value != int(value):
+        raise ValueError(f"bus spec {spec!r}: bitrate '{text}' must be a positive whole number of bit/s")
+    return int(value)

@@ -1,0 +1,510 @@
+"""CANopen master for the vehicle: the same code drives the emulator (``hil.server``) and the real vehicle.
+
+Built on canopen (:class:`canopen.profiles.p402.BaseNode402` for the drives, :class:`canopen.RemoteNode`
+for the encoders, both from the EDS files) and python-can; nothing here knows about the emulator, only
+the bus spec differs (``"virtual"`` vs ``"socketcan:can0"``).
+
+Start-up (:meth:`VehicleClient.connect`), CiA 301 §7.2.8 / CiA 402 §6:
+
+1. NMT reset communication of nodes 1…6, wait for their boot-up messages;
+2. configure by SDO (PRE-OPERATIONAL): 0x1006 = T_s; PDO communication and mapping written from the
+   EDS defaults (or read from the devices); drives: read 0x6076 rated torque and 0x6072 max torque,
+   check 0x6502, target torque 0x6071 = 0, 0x6060 = 10 (CST) confirmed by reading 0x6061;
+3. walk every drive's power state machine to OPERATION ENABLED by SDO (fault reset if needed);
+4. NMT start.
+
+Cycle (:meth:`VehicleClient.exchange`): the RPDOs (controlword 0x000F, target torque per mille), then
+SYNC, then wait for every synchronous TPDO of this SYNC. Everything the master sends and receives can
+be recorded to a BLF file.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+
+import can
+import canopen
+import numpy as np
+from canopen.profiles.p402 import BaseNode402, State402
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from .bus import open_bus
+from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
+from .measurement import Measurement
+from .pdo_codec import PdoCodec, build_codec, encode_entry
+from .recorder import BusRecorder
+
+logger = logging.getLogger(__name__)
+
+_CW_ENABLE_OPERATION = 0x000F
+_CW_SHUTDOWN = 0x0006
+_CW_FAULT_RESET = 0x0080
+_MODE_CST = 10
+_CST_SUPPORTED = 0x0200                 # 0x6502 bit 9
+_SW_STATE_MASK, _SW_OPERATION_ENABLED = 0x6F, 0x27
+
+# Objects the cycle needs in the synchronous TPDOs: (index, subindex) → (measurement field, per node).
+_DRIVE_INPUTS = {(0x6041, 0): "status", (0x6064, 0): "position", (0x606C, 0): "velocity",
+                 (0x6077, 0): "torque"}
+_ENCODER_INPUTS = {(0x6004, 0): "counts"}
+
+
+class CommunicationError(RuntimeError):
+    """The vehicle did not answer (in time) or answered wrongly: missing boot-up, SDO abort/timeout,
+    missing TPDO after a SYNC, or a PDO mapping the master cannot use."""
+
+
+class DriveFaultError(CommunicationError):
+    """A drive is no longer OPERATION ENABLED (fault, e.g. after a SYNC timeout, or quick stop).
+
+    Attributes:
+        measurement: the :class:`~hil.measurement.Measurement` of the cycle that revealed it.
+        states: {node id: CiA 402 state name} of the drives not in OPERATION ENABLED.
+    """
+
+    def __init__(self, message: str, measurement: Measurement, states: dict[int, str]):
+        super().__init__(message)
+        self.measurement = measurement
+        self.states = states
+
+
+class _RecordingNetwork(canopen.Network):
+    """canopen Network that hands every frame it sends to a :class:`BusRecorder`."""
+
+    recorder: BusRecorder | None = None
+
+    def send_message(self, can_id: int, data, remote: bool = False) -> None:
+        if not self.bus:
+            raise RuntimeError("Not connected to CAN bus")
+        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                          is_remote_frame=remote)
+        with self.send_lock:
+            self.bus.send(msg)
+        if self.recorder is not None:
+            self.recorder.on_transmit(msg)
+        self.check()
+
+
+def state_of(statusword: int) -> str:
+    """CiA 402 state name of a statusword (canopen's State402 coding), 'UNKNOWN' if none matches."""
+    for state, (mask, bits) in State402.SW_MASK.items():
+        if statusword & mask == bits:
+            return state
+    return "UNKNOWN"
+
+
+class VehicleClient:
+    """Master of the vehicle's CANopen network (drives 1…4 = fl, rl, fr, rr; encoders 5, 6 = left, right).
+
+    Args:
+        bus: bus spec string (:func:`hil.bus.open_bus`, closed on :meth:`stop`) or an open python-can
+            bus (left open).
+        encoder_increments: motor encoder increments per motor revolution (data sheet).
+        steering_sensor_bits: resolution of the steering angle sensors (data sheet).
+        cycle_time: s, SYNC period T_s (data sheet); written to 0x1006 of every node.
+        record: path of a bus log (``.blf``): every frame in both directions, flushed by :meth:`stop`.
+        drive_eds, encoder_eds: EDS files; their PDO mapping is written to the devices.
+        configure_pdos: True: write the EDS PDO configuration by SDO; False: read the devices'.
+        timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC.
+        boot_timeout: s, how long :meth:`connect` waits for boot-up messages.
+        enable_timeout: s, per drive, for the walk to OPERATION ENABLED.
+    Attributes:
+        rated_torque: (4,) N m motor side, from 0x6076 (read at connect).
+        max_torque: (4,) N m motor side, from 0x6072.
+        cycle: SYNCs sent since connect.
+    Raises:
+        ValueError: non-positive data-sheet numbers.
+
+    The drives supervise the master: if SYNCs stop for longer than their SYNC timeout (0.1 s for the
+    emulator) while they are enabled, they fault and the next :meth:`exchange` raises
+    :class:`DriveFaultError`; call :meth:`enable` to continue. Keep cycling (zero torque) or call
+    :meth:`stop` during long pauses.
+    """
+
+    def __init__(self, bus: str | can.BusABC = "virtual", *, encoder_increments: int,
+                 steering_sensor_bits: int, cycle_time: float, record: str | Path | None = None,
+                 drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
+                 configure_pdos: bool = True, timeout: float = 0.5, boot_timeout: float = 2.0,
+                 enable_timeout: float = 1.0):
+        if encoder_increments <= 0 or steering_sensor_bits <= 0 or not cycle_time > 0:
+            raise ValueError("encoder_increments, steering_sensor_bits and cycle_time must be > 0")
+        self.encoder_increments = int(encoder_increments)
+        self.steering_sensor_bits = int(steering_sensor_bits)
+        self.cycle_time = float(cycle_time)
+        self.record = Path(record) if record is not None else None
+        self.timeout = timeout
+        self.boot_timeout = boot_timeout
+        self.enable_timeout = enable_timeout
+        self._bus_arg = bus
+        self._drive_eds, self._encoder_eds = str(drive_eds), str(encoder_eds)
+        self._configure_pdos = configure_pdos
+        self.rated_torque = np.full(4, np.nan)
+        self.max_torque = np.full(4, np.nan)
+        self.cycle = 0
+        self._network: _RecordingNetwork | None = None
+        self._bus: can.BusABC | None = None
+        self._recorder: BusRecorder | None = None
+        self.drives: list[BaseNode402] = []
+        self.encoders: list[canopen.RemoteNode] = []
+        self._operational = False
+        self._rx: dict[int, bytes] = {}
+        self._rx_done = threading.Event()
+        self._expected = 0
+        self._booted = False
+        self._unwrap: tuple[np.ndarray, np.ndarray] | None = None
+
+    @classmethod
+    def from_drive(cls, drive, bus: str | can.BusABC = "virtual", **kwargs) -> "VehicleClient":
+        """Client from a data-sheet object with ``encoder_increments``, ``steering_sensor_bits`` and
+        ``cycle_time`` attributes (e.g. a vehicle description's ``drive`` section)."""
+        return cls(bus, encoder_increments=drive.encoder_increments,
+                   steering_sensor_bits=drive.steering_sensor_bits, cycle_time=drive.cycle_time, **kwargs)
+
+    # --------------------------------------------------------- lifecycle
+    def connect(self) -> "VehicleClient":
+        """Boot, configure and enable the vehicle, then NMT start (module docstring).
+
+        Raises:
+            CommunicationError: a node did not boot, an SDO failed, a drive could not be enabled, or the
+                PDO mapping lacks an object the cycle needs.
+            ValueError, can.CanError: the bus spec is bad or the bus cannot be opened.
+        """
+        if self._network is not None:
+            raise RuntimeError("client already connected")
+        try:
+            self._open()
+            self._boot()
+            self._configure()
+            self.enable()
+            self._start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def __enter__(self) -> "VehicleClient":
+        return self.connect()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        """Make the vehicle safe and disconnect; always safe to call (also after errors, twice, or
+        without connect).
+
+        Sends target torque 0 and controlword SHUTDOWN (torque off) to every drive by SDO, NMT
+        PRE-OPERATIONAL to every node, then stops receiving, flushes the bus log and closes the bus if
+        it was opened here. Communication errors on the way are logged, not raised.
+        """
+        network, self._network = self._network, None
+        try:
+            if network is not None and network.bus is not None and self._booted:
+                for node in self.drives:
+                    try:
+                        node.sdo[0x6071].raw = 0
+                        node.sdo[0x6040].raw = _CW_SHUTDOWN
+                    except SdoCommunicationError as exc:   # no answer: do not wait for every drive
+                        logger.warning("stop: drive %d does not answer (%s); skipping the other SDOs",
+                                       node.id, exc)
+                        break
+                    except Exception as exc:               # noqa: BLE001 - keep making things safe
+                        logger.warning("stop: drive %d: shutdown by SDO failed: %s", node.id, exc)
+                for node in self.drives + self.encoders:
+                    try:
+                        node.nmt.send_command(0x80)        # PRE-OPERATIONAL
+                    except Exception as exc:               # noqa: BLE001
+                        logger.warning("stop: NMT to node %d failed: %s", node.id, exc)
+        finally:
+            self._operational = self._booted = False
+            try:
+                if network is not None and network.notifier is not None:
+                    network.notifier.stop(1.0)
+            finally:
+                if self._recorder is not None:
+                    self._recorder.stop()
+                if self._bus is not None and isinstance(self._bus_arg, str):
+                    self._bus.shutdown()
+                self._bus = None
+
+    # ------------------------------------------------------------ cycle
+    def exchange(self, motor_torque) -> Measurement:
+        """One lock-step cycle: send torques, SYNC, collect the TPDOs of this SYNC.
+
+        Args:
+            motor_torque: (4,) N m motor side, order fl, rl, fr, rr; sent as per mille of the rated
+                torque (rounded), clipped to ±0x6072.
+        Returns:
+            The :class:`~hil.measurement.Measurement` sampled at this SYNC.
+        Raises:
+            ValueError: wrong shape or non-finite torque.
+            CommunicationError: not connected, or not all TPDOs arrived within ``timeout``.
+            DriveFaultError: a drive reports a state other than OPERATION ENABLED.
+        """
+        if not self._operational:
+            raise CommunicationError("not connected: call connect() first")
+        tau = np.asarray(motor_torque, dtype=float)
+        if tau.shape != (4,):
+            raise ValueError(f"motor_torque must have shape (4,), got {tau.shape}")
+        if not np.all(np.isfinite(tau)):
+            raise ValueError(f"motor_torque must be finite, got {tau}")
+        per_mille = np.clip(np.rint(tau * self._per_mille_per_nm), -self._max_per_mille,
+                            self._max_per_mille).astype(np.int64).tolist()
+        self._rx.clear()
+        self._rx_done.clear()
+        send = self._network.send_message
+        for cob_id, codec, drive, slots in self._rpdo_plan:
+            values = [per_mille[drive] if slot is None else slot for slot in slots]
+            send(cob_id, codec.pack(values))
+        send(SYNC_COB_ID, b"")
+        t = self.cycle * self.cycle_time
+        self.cycle += 1
+        if not self._rx_done.wait(self.timeout):
+            missing = sorted(set(self._tpdo_plan) - set(self._rx))
+            raise CommunicationError(
+                f"cycle {self.cycle - 1}: no TPDO with COB-ID {', '.join(f'0x{c:03X}' for c in missing)} "
+                f"within {self.timeout} s after SYNC")
+        return self._decode(t)
+
+    def enable(self) -> None:
+        """Walk every drive to OPERATION ENABLED by SDO (controlword 0x6040, statusword 0x6041), with a
+        fault reset (controlword bit 7 rising edge) if a drive is in FAULT. Works in PRE-OPERATIONAL and
+        OPERATIONAL; clears target torque 0x6071 first.
+
+        Raises:
+            CommunicationError: SDO failure, or a drive not enabled within ``enable_timeout``.
+        """
+        for node in self.drives:
+            self._write(node, 0x6071, 0)
+            deadline = time.monotonic() + self.enable_timeout
+            while True:
+                statusword = self._read(node, 0x6041)
+                state = state_of(statusword)
+                if state == "OPERATION ENABLED":
+                    break
+                if time.monotonic() > deadline:
+                    raise CommunicationError(
+                        f"drive {node.id} ({WHEELS[node.id - 1]}) stays in {state} "
+                        f"(statusword 0x{statusword:04X}) instead of OPERATION ENABLED")
+                if state == "FAULT":
+                    self._write(node, 0x6040, 0x0000)
+                    self._write(node, 0x6040, _CW_FAULT_RESET)
+                elif state in ("NOT READY TO SWITCH ON", "FAULT REACTION ACTIVE", "UNKNOWN"):
+                    time.sleep(0.005)                     # automatic transition in progress
+                else:
+                    target = "OPERATION ENABLED"
+                    if (state, target) not in State402.TRANSITIONTABLE:
+                        target = State402.next_state_indirect(state)
+                    self._write(node, 0x6040, State402.TRANSITIONTABLE[(state, target)])
+
+    # ----------------------------------------------------------- set-up
+    def _open(self) -> None:
+        self._bus = open_bus(self._bus_arg) if isinstance(self._bus_arg, str) else self._bus_arg
+        network = _RecordingNetwork(self._bus)
+        network.NOTIFIER_CYCLE = 0.05
+        if self.record is not None:
+            self._recorder = BusRecorder(self.record)
+            network.recorder = self._recorder
+            network.listeners.append(self._recorder)
+        self.drives = [BaseNode402(i, self._drive_eds) for i in DRIVE_NODE_IDS]
+        self.encoders = [canopen.RemoteNode(i, self._encoder_eds) for i in ENCODER_NODE_IDS]
+        for node in self.drives + self.encoders:
+            network.add_node(node)
+        self._network = network
+        network.connect()
+
+    def _boot(self) -> None:
+        booted: set[int] = set()
+        condition = threading.Condition()
+
+        def watcher(node_id):
+            def on_heartbeat(state):
+                if state == 0:
+                    with condition:
+                        booted.add(node_id)
+                        condition.notify_all()
+            return on_heartbeat
+
+        nodes = self.drives + self.encoders
+        for node in nodes:
+            node.nmt.add_heartbeat_callback(watcher(node.id))
+        for node in nodes:
+            node.nmt.send_command(0x82)                  # reset communication
+        with condition:
+            condition.wait_for(lambda: len(booted) == len(nodes), self.boot_timeout)
+        missing = sorted({n.id for n in nodes} - booted)
+        if missing:
+            raise CommunicationError(f"no boot-up from node(s) {missing} within {self.boot_timeout} s "
+                                     f"after NMT reset communication")
+        self._booted = True
+
+    def _configure(self) -> None:
+        period_us = int(round(self.cycle_time * 1e6))
+        for node in self.drives + self.encoders:
+            if 0x1006 in node.object_dictionary:
+                self._write(node, 0x1006, period_us)
+            try:
+                if self._configure_pdos:
+                    node.pdo.read(from_od=True)
+                    node.pdo.save()
+                else:
+                    node.pdo.read()
+            except (SdoAbortedError, SdoCommunicationError) as exc:
+                raise CommunicationError(f"node {node.id}: PDO configuration failed: {exc}") from exc
+            for pdo in list(node.tpdo.map.values()) + list(node.rpdo.map.values()):
+                # The cycle decodes TPDOs itself; canopen's per-frame handlers would only cost time.
+                if pdo.cob_id in self._network.subscribers and \
+                        pdo.on_message in self._network.subscribers[pdo.cob_id]:
+                    self._network.unsubscribe(pdo.cob_id, pdo.on_message)
+        for i, node in enumerate(self.drives):
+            rated = self._read(node, 0x6076)
+            if rated <= 0:
+                raise CommunicationError(f"drive {node.id}: motor rated torque 0x6076 = {rated}")
+            self.rated_torque[i] = rated * 1e-3
+            self.max_torque[i] = self._read(node, 0x6072) * rated * 1e-6
+            if not self._read(node, 0x6502) & _CST_SUPPORTED:
+                raise CommunicationError(f"drive {node.id}: cyclic synchronous torque not in 0x6502")
+            self._write(node, 0x6071, 0)
+            self._write(node, 0x6060, _MODE_CST)
+            mode = self._read(node, 0x6061)
+            if mode != _MODE_CST:
+                raise CommunicationError(f"drive {node.id}: mode display 0x6061 = {mode} after setting "
+                                         f"0x6060 = {_MODE_CST}")
+        for node in self.encoders:
+            if 0x6001 in node.object_dictionary:
+                units = self._read(node, 0x6001)
+                if units != 1 << self.steering_sensor_bits:
+                    logger.warning("encoder %d: 0x6001 = %d measuring units per revolution, data sheet "
+                                   "says %d bits", node.id, units, self.steering_sensor_bits)
+        self._per_mille_per_nm = 1000.0 / self.rated_torque
+        self._max_per_mille = np.minimum(np.rint(self.max_torque * self._per_mille_per_nm), 32767)
+        self._plan_cycle()
+
+    def _plan_cycle(self) -> None:
+        """Compile the RPDOs to send and the TPDOs to await from the configured PDO maps."""
+        self._rpdo_plan: list[tuple[int, PdoCodec, int, list]] = []
+        for i, node in enumerate(self.drives):
+            has_torque = False
+            for pdo in node.rpdo.map.values():
+                if not pdo.enabled or not pdo.map:
+                    continue
+                codec = _codec(node, pdo, receive=True)
+                slots = []
+                for key in codec.keys:
+                    if key == (0x6071, 0):
+                        slots.append(None)
+                        has_torque = True
+                    elif key == (0x6040, 0):
+                        slots.append(_CW_ENABLE_OPERATION)
+                    elif key == (0x6060, 0):
+                        slots.append(_MODE_CST)
+                    else:
+                        raise CommunicationError(f"drive {node.id}: RPDO {pdo.cob_id:#x} maps "
+                                                 f"0x{key[0]:04X}:{key[1]:02X}, the master has no value for it")
+                self._rpdo_plan.append((pdo.cob_id, codec, i, slots))
+            if not has_torque:
+                raise CommunicationError(f"drive {node.id}: target torque 0x6071 is in no enabled RPDO")
+        self._tpdo_plan: dict[int, tuple[PdoCodec, list]] = {}
+        for nodes, inputs in ((self.drives, _DRIVE_INPUTS), (self.encoders, _ENCODER_INPUTS)):
+            for i, node in enumerate(nodes):
+                found = set()
+                for pdo in node.tpdo.map.values():
+                    if not pdo.enabled or not pdo.map:
+                        continue
+                    if pdo.trans_type != 1:
+                        logger.warning("node %d: TPDO %#x has transmission type %s, not awaited each "
+                                       "SYNC; its data are not used", node.id, pdo.cob_id, pdo.trans_type)
+                        continue
+                    codec = _codec(node, pdo, receive=False)
+                    sinks = [(inputs[k], i) if k in inputs else None for k in codec.keys]
+                    found.update(k for k in codec.keys if k in inputs)
+                    self._tpdo_plan[pdo.cob_id] = (codec, sinks)
+                needed = set(inputs) - {(0x6041, 0)} - found
+                if needed:
+                    raise CommunicationError(
+                        f"node {node.id}: {', '.join(f'0x{k[0]:04X}' for k in sorted(needed))} not in a "
+                        f"synchronous TPDO (transmission type 1)")
+        self._expected = len(self._tpdo_plan)
+
+    def _start(self) -> None:
+        for cob_id in self._tpdo_plan:
+            self._network.subscribe(cob_id, self._on_tpdo)
+        for node in self.drives + self.encoders:
+            node.nmt.send_command(0x01)                  # NMT start
+        self.cycle = 0
+        self._unwrap = None
+        self._operational = True
+
+    # ------------------------------------------------------- reception
+    def _on_tpdo(self, can_id: int, data, timestamp: float) -> None:
+        rx = self._rx
+        rx[can_id] = data
+        if len(rx) >= self._expected:
+            self._rx_done.set()
+
+    def _decode(self, t: float) -> Measurement:
+        fields = {"status": [None] * 4, "position": [0] * 4, "velocity": [0] * 4, "torque": [0] * 4,
+                  "counts": [0] * 2}
+        for cob_id, data in list(self._rx.items()):
+            plan = self._tpdo_plan.get(cob_id)
+            if plan is None:
+                continue
+            codec, sinks = plan
+            if len(data) < codec.size:
+                raise CommunicationError(f"cycle {self.cycle - 1}: TPDO 0x{cob_id:03X} has {len(data)} "
+                                         f"bytes, mapping needs {codec.size}")
+            for sink, value in zip(sinks, codec.unpack(data)):
+                if sink is not None:
+                    fields[sink[0]][sink[1]] = value
+        raw = np.array(fields["position"], dtype=np.int64)
+        if self._unwrap is None:
+            total = raw
+        else:
+            last_raw, last_total = self._unwrap
+            total = last_total + ((raw - last_raw + 2**31) % 2**32 - 2**31)
+        self._unwrap = (raw, total)
+        scale = 2.0 * math.pi / self.encoder_increments
+        full = 1 << self.steering_sensor_bits
+        counts = np.array(fields["counts"], dtype=np.int64) % full
+        counts = np.where(counts > full // 2, counts - full, counts)
+        measurement = Measurement(
+            time=t,
+            motor_position=total * scale,
+            motor_velocity=np.array(fields["velocity"], dtype=float) * scale,
+            motor_torque=np.array(fields["torque"], dtype=float) * self.rated_torque * 1e-3,
+            alpha=counts * (2.0 * math.pi / full),
+        )
+        bad = {DRIVE_NODE_IDS[i]: state_of(sw) for i, sw in enumerate(fields["status"])
+               if sw is not None and sw & _SW_STATE_MASK != _SW_OPERATION_ENABLED}
+        if bad:
+            raise DriveFaultError(
+                f"cycle {self.cycle - 1}: drive(s) not OPERATION ENABLED: "
+                + ", ".join(f"{n} ({WHEELS[n - 1]}) {s}" for n, s in bad.items())
+                + "; call enable() to recover", measurement, bad)
+        return measurement
+
+    # ------------------------------------------------------------- SDO
+    def _read(self, node, index: int, subindex: int | None = None):
+        try:
+            obj = node.sdo[index] if subindex is None else node.sdo[index][subindex]
+            return obj.raw
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise CommunicationError(f"node {node.id}: SDO read 0x{index:04X} failed: {exc}") from exc
+
+    def _write(self, node, index: int, value, subindex: int | None = None) -> None:
+        try:
+            obj = node.sdo[index] if subindex is None else node.sdo[index][subindex]
+            obj.raw = value
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise CommunicationError(f"node {node.id}: SDO write 0x{index:04X} = {value} failed: {exc}") \
+                from exc
+
+
+def _codec(node, pdo, receive: bool) -> PdoCodec:
+    entries = [encode_entry(var.index, var.subindex, var.length) for var in pdo.map]
+    try:
+        return build_codec(node.object_dictionary, entries, receive)
+    except ValueError as exc:
+        raise CommunicationError(f"node {node.id}: PDO {pdo.cob_id:#x}: {exc}") from exc

@@ -1,0 +1,257 @@
+"""The four-step identification campaign of the paper (section 6.2) plus the lane-change validation run,
+executed through a vehicle link (the CANopen client, or anything with the same ``exchange``/``stop``).
+
+Order: steer left, steer right, straight, rotation (the paper's order: straight before rotation so the
+direction of the straight motion is known), then the lane change in mode 2 that the fit never sees. The
+wheels are aligned at rest between steps (mode 1). Everything is recorded cycle by cycle into the run
+directory; if anything fails the wheels get torque 0, the drives are disabled, and what was recorded so
+far stays on disk.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numpy as np
+
+from . import excitation, kinematics
+from .controller import ControllerSettings, StepController, quintic_alignment
+from .datasheet import DataSheet
+from .excitation import ExcitationStep
+from .recording import SignalWriter
+
+IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
+VALIDATION_STEP = "lane_change"
+METADATA = "metadata.json"
+SIGNALS = "signals.csv"
+
+
+class VehicleLink(Protocol):
+    """What the campaign needs from a vehicle (``hil.client.VehicleClient`` satisfies it)."""
+
+    def exchange(self, motor_torque: np.ndarray): ...
+
+    def stop(self) -> None: ...
+
+
+class CampaignAborted(RuntimeError):
+    """The campaign stopped early; the run directory keeps what was recorded until then."""
+
+
+@dataclass(frozen=True)
+class CampaignSettings:
+    """Durations (s) and limits (SI) of the campaign's movements; ``seed`` designs the excitation."""
+
+    steer_duration: float = 12.0
+    straight_duration: float = 14.0
+    rotation_duration: float = 14.0
+    lane_change_duration: float = 12.0
+    align_duration: float = 2.0
+    rest_duration: float = 0.5
+    alpha_max: float = 0.6
+    alpha_dot_max: float = 1.5
+    alpha_ddot_max: float = 6.0
+    x_max: float = 1.2
+    x_dot_max: float = 0.8
+    x_ddot_max: float = 1.0
+    gamma_max: float = 1.0
+    gamma_dot_max: float = 0.8
+    gamma_ddot_max: float = 1.5
+    lane_distance: float = 5.0
+    lane_width: float = 1.0
+    n_harmonics: int = 5
+    seed: int = 0
+
+    @classmethod
+    def quick(cls, **overrides) -> "CampaignSettings":
+        """A short campaign (≈ 30 s emulated) for tests and smoke runs."""
+        short = dict(steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
+                     lane_change_duration=8.0, align_duration=1.5, rest_duration=0.3,
+                     lane_distance=3.0, lane_width=0.6, n_harmonics=4)
+        short.update(overrides)
+        return cls(**short)
+
+
+def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
+    """The four identification steps and the lane change, designed from ``settings``."""
+    g, s = sheet.geometry, settings
+    common = dict(n_harmonics=s.n_harmonics)
+    steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
+                 alpha_ddot_max=s.alpha_ddot_max, **common)
+    return [
+        excitation.steer_left_excitation(seed=s.seed + 1, **steer),
+        excitation.steer_right_excitation(seed=s.seed + 2, **steer),
+        excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
+                                       x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
+                                       seed=s.seed + 3, **common),
+        excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
+                                       gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
+                                       gamma_ddot_max=s.gamma_ddot_max, seed=s.seed + 4, **common),
+        excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
+                               lane_width=s.lane_width, x_dot_max=s.x_dot_max,
+                               x_ddot_max=s.x_ddot_max),
+    ]
+
+
+def step_start_alpha(step: ExcitationStep) -> np.ndarray:
+    """Steering angles (2,) [rad] the step starts from."""
+    ref = step.evaluate(np.array([0.0]))
+    if "alpha_l" in ref:
+        return np.array([ref["alpha_l"][0][0], ref["alpha_r"][0][0]])
+    return np.zeros(2)
+
+
+def occupied_rectangle(steps: list[ExcitationStep], sheet: DataSheet) -> dict:
+    """Space the campaign needs, section 6.2: (l + 2·max|x_ch|) × (√(l²+b²) + 2a), in m."""
+    g = sheet.geometry
+    straight = next(s for s in steps if s.name == "straight")
+    length, width = excitation.occupied_rectangle(straight.trajectories["x_ch"], g.l, g.b, g.a)
+    return {"length": float(length), "width": float(width), "unit": "m"}
+
+
+class Campaign:
+    """Runs the campaign against ``vehicle`` and records it into ``run_dir``.
+
+    Args:
+        vehicle: the vehicle link.
+        sheet: the vehicle's data sheet (geometry, drive, nominal parameters).
+        run_dir: output directory (created; must not already hold a signals file).
+        settings: durations and limits.
+        controller: loop settings.
+        source: a description of where the data come from (bus spec), stored in the metadata.
+        on_progress: called with (cycles done, cycles total, segment name) every cycle.
+
+    Raises:
+        FileExistsError: ``run_dir`` already holds a recording.
+    """
+
+    def __init__(self, vehicle: VehicleLink, sheet: DataSheet, run_dir: str | Path,
+                 settings: CampaignSettings | None = None,
+                 controller: ControllerSettings | None = None, source: str = "",
+                 on_progress: Callable[[int, int, str], None] | None = None):
+        self.vehicle = vehicle
+        self.sheet = sheet
+        self.settings = settings or CampaignSettings()
+        self.controller_settings = controller or ControllerSettings()
+        self.run_dir = Path(run_dir)
+        self.source = source
+        self.on_progress = on_progress
+        self.steps = plan(sheet, self.settings)
+        self.segments = self._segments()
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        if (self.run_dir / SIGNALS).exists():
+            raise FileExistsError(f"{self.run_dir / SIGNALS} exists; choose a new run directory")
+
+    def _segments(self) -> list[ExcitationStep]:
+        s = self.settings
+        segments: list[ExcitationStep] = []
+        alpha = np.zeros(2)
+        for step in self.steps:
+            start = step_start_alpha(step)
+            if np.max(np.abs(start - alpha)) > 1e-6:
+                segments.append(quintic_alignment(alpha, start, s.align_duration, name="align"))
+            segments.append(quintic_alignment(start, start, s.rest_duration, name="rest"))
+            segments.append(step)
+            alpha = _step_end_alpha(step, self.sheet)
+        segments.append(quintic_alignment(alpha, alpha, s.rest_duration, name="rest"))
+        return segments
+
+    @property
+    def total_cycles(self) -> int:
+        ts = self.sheet.drive.cycle_time
+        return sum(_cycles(seg, ts) for seg in self.segments)
+
+    def run(self) -> dict:
+        """Execute all segments; returns the metadata written to ``metadata.json``.
+
+        Raises:
+            CampaignAborted: a communication error, a steering angle near the stops, or an interrupt
+                (KeyboardInterrupt); the vehicle is stopped and the recording kept.
+        """
+        ts = self.sheet.drive.cycle_time
+        meta = self._metadata()
+        meta["status"] = "running"
+        self._write_metadata(meta)
+        done, total = 0, self.total_cycles
+        limit = self.sheet.geometry.steering_limit - 0.03
+        writer = SignalWriter(self.run_dir / SIGNALS)
+        try:
+            measurement = self.vehicle.exchange(np.zeros(4))
+            for seg in self.segments:
+                ctrl = StepController(seg, self.sheet, self.controller_settings)
+                start = measurement.time
+                for j in range(_cycles(seg, ts)):
+                    u = ctrl.command(j * ts, measurement)
+                    measurement = self.vehicle.exchange(u)
+                    writer.write(seg.name, seg.mode, measurement, u)
+                    if np.any(np.abs(measurement.alpha) > limit):
+                        raise CampaignAborted(
+                            f"steering angle {np.round(measurement.alpha, 3)} rad near the stops "
+                            f"during '{seg.name}'")
+                    done += 1
+                    if self.on_progress:
+                        self.on_progress(done, total, seg.name)
+                writer.flush()
+                meta["segments"].append({"name": seg.name, "k": seg.mode, "t_start": start,
+                                         "t_end": measurement.time})
+                self._write_metadata(meta)
+            meta["status"] = "complete"
+        except BaseException as exc:  # noqa: BLE001 - stop the wheels whatever happened
+            meta["status"] = f"aborted: {type(exc).__name__}: {exc}"
+            self._safe_stop()
+            writer.close()
+            self._write_metadata(meta)
+            if isinstance(exc, CampaignAborted):
+                raise
+            raise CampaignAborted(meta["status"]) from exc
+        self._safe_stop()
+        writer.close()
+        meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+        self._write_metadata(meta)
+        return meta
+
+    def _safe_stop(self) -> None:
+        try:
+            self.vehicle.stop()
+        except Exception:  # noqa: BLE001 - stopping must never mask the original failure
+            pass
+
+    def _metadata(self) -> dict:
+        sheet = self.sheet
+        return {
+            "format": "qomni-run/1",
+            "vehicle": sheet.name,
+            "source": self.source,
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(sheet.drive),
+                          "nominal": asdict(sheet.nominal)},
+            "settings": asdict(self.settings),
+            "controller": asdict(self.controller_settings),
+            "occupied_rectangle": occupied_rectangle(self.steps, sheet),
+            "identification_steps": list(IDENTIFICATION_STEPS),
+            "validation_step": VALIDATION_STEP,
+            "segments": [],
+        }
+
+    def _write_metadata(self, meta: dict) -> None:
+        path = self.run_dir / METADATA
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(meta, indent=2))
+        tmp.replace(path)
+
+
+def _cycles(step: ExcitationStep, cycle_time: float) -> int:
+    return int(math.floor(step.duration / cycle_time + 1e-9)) + 1
+
+
+def _step_end_alpha(step: ExcitationStep, sheet: DataSheet) -> np.ndarray:
+    ref = step.evaluate(np.array([step.duration]))
+    if "alpha_v" in step.trajectories:
+        return kinematics.f_icr(ref["alpha_v"][0], sheet.geometry)[0]
+    if "alpha_l" in ref:
+        return np.array([ref["alpha_l"][0][0], ref["alpha_r"][0][0]])
+    return np.zeros(2)

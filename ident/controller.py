@@ -1,0 +1,203 @@
+"""The campaign's motion controller: executes a step's trajectory through the four wheel torques only.
+
+Per cycle it
+1. estimates the state from what the bus gives: α from the steering sensors, α̇ by a filtered
+   differentiator, β̇ from the drives' velocity, chassis velocities by odometry (3), and the step's
+   chassis coordinate (x_ch or γ_ch) by integrating them — no ground-truth pose;
+2. computes feed-forward motor torques with the paper's law (21) and nominal parameters;
+3. adds PD feedback on the steering angles (holding or tracking them through differential wheel torques,
+   H_1ᵀB) and on the step's chassis coordinate (H_kᵀB of its column), allocated to the four motors by
+   the pseudoinverse of the stacked input rows;
+4. clips to the drives' torque limit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import dynamics, kinematics, odometry
+from .control_design import DifferentiatorFilter, design_pd, design_pid
+from .datasheet import DataSheet
+from .excitation import ExcitationStep
+
+CHASSIS_COORDINATE = {2: "x_ch", 3: "y_ch", 4: "gamma_ch"}
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """Loop bandwidths (rad/s) and damping; the velocity-estimate filter cutoff (rad/s)."""
+
+    steering_bandwidth: float = 45.0
+    steering_integral_ratio: float = 0.25  # integral pole / bandwidth; removes the Coulomb deadband
+    chassis_bandwidth: float = 6.0
+    damping: float = 0.9
+    derivative_cutoff: float = 150.0
+    torque_margin: float = 0.95  # fraction of max_torque the controller may command
+
+
+@dataclass
+class ControllerState:
+    """The controller's estimate after the last measurement (SI, see docs/conventions.md)."""
+
+    alpha: np.ndarray
+    alpha_dot: np.ndarray
+    beta_dot: np.ndarray
+    velocity: np.ndarray  # chassis-frame ẋ, ẏ, γ̇
+    s_chassis: float  # the step's chassis coordinate by odometry
+
+
+class StepController:
+    """Tracks one ``ExcitationStep`` (modes 1, 2, 4; mode 2 with or without α_v).
+
+    Args:
+        step: the step; its trajectories start at t = 0.
+        sheet: the vehicle data sheet (geometry, drive, nominal parameters for feed-forward).
+        settings: loop settings.
+
+    Call ``command(t, measurement)`` once per cycle; it returns the motor torques (4,) [N m, motor
+    side] to send for the next cycle.
+    """
+
+    def __init__(self, step: ExcitationStep, sheet: DataSheet,
+                 settings: ControllerSettings | None = None):
+        self.step = step
+        self.sheet = sheet
+        self.settings = s = settings or ControllerSettings()
+        g, d, n = sheet.geometry, sheet.drive, sheet.nominal
+        self.k = step.mode
+        self.p_nominal = n.p
+        self._steer_gains = design_pid(s.steering_bandwidth, s.damping, d.cycle_time,
+                                       s.steering_integral_ratio)
+        self._chassis_gains = design_pd(s.chassis_bandwidth, s.damping, d.cycle_time)
+        self._dalpha = DifferentiatorFilter(s.derivative_cutoff, d.cycle_time, 2)
+        ar2 = (g.a / g.r) ** 2
+        self._steer_inertia = np.array([n.C_l, n.C_r]) + 2 * n.B_w * ar2
+        self._hold_rows = d.i_G * kinematics.H(1, np.zeros((1, 2)), g)[0][5:9, :].T  # (2, 4) H_1ᵀB
+        self._s_chassis = 0.0
+        self._steer_integral = np.zeros(2)
+        # anti-windup: the integral may supply at most 1.5 × the nominal steering Coulomb friction
+        self._integral_limit = 1.5 * np.array([n.d_cl, n.d_cr]) / (
+            self._steer_inertia * self._steer_gains.ki)
+        self._u_max = s.torque_margin * d.max_torque
+        self.state: ControllerState | None = None
+
+    # -- references -------------------------------------------------------------------------
+    def _alpha_reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ref = self.step.evaluate(np.array([t]))
+        if "alpha_v" in ref and "alpha_v" in self.step.trajectories:
+            h = 1e-4
+            av = np.array([ref["alpha_v"][0][0] + dv for dv in (-h, 0.0, h)])
+            a = kinematics.f_icr(av, self.sheet.geometry)  # (3, 2)
+            av_d, av_dd = ref["alpha_v"][1][0], ref["alpha_v"][2][0]
+            da = (a[2] - a[0]) / (2 * h)
+            dda = (a[2] - 2 * a[1] + a[0]) / h**2
+            return a[1], da * av_d, dda * av_d**2 + da * av_dd
+        return tuple(np.array([ref[c][i][0] for c in ("alpha_l", "alpha_r")]) for i in range(3))
+
+    def _chassis_reference(self, t: float):
+        name = CHASSIS_COORDINATE.get(self.k)
+        if name is None or name not in self.step.trajectories:
+            return None
+        q, qd, qdd = self.step.evaluate(np.array([t]))[name]
+        return q[0], qd[0], qdd[0]
+
+    # -- one cycle ----------------------------------------------------------------------------
+    def estimate(self, measurement) -> ControllerState:
+        """Update the state estimate from one measurement (the client's ``Measurement``)."""
+        g, d = self.sheet.geometry, self.sheet.drive
+        alpha = np.asarray(measurement.alpha, dtype=float)
+        alpha_dot = self._dalpha.update(alpha)
+        beta_dot = np.asarray(measurement.motor_velocity, dtype=float) / d.i_G
+        velocity = odometry.chassis_velocity(alpha[None], alpha_dot[None], beta_dot[None], g)[0]
+        if self.state is not None:
+            rate = {2: velocity[0], 3: velocity[1], 4: velocity[2]}.get(self.k, 0.0)
+            self._s_chassis += rate * d.cycle_time
+        self.state = ControllerState(alpha, alpha_dot, beta_dot, velocity, self._s_chassis)
+        return self.state
+
+    def command(self, t: float, measurement) -> np.ndarray:
+        """Motor torques (4,) [N m, motor side] for the cycle after ``measurement``, at step time t."""
+        st = self.estimate(measurement)
+        g, d = self.sheet.geometry, self.sheet.drive
+        a_ref, ad_ref, add_ref = self._alpha_reference(t)
+        chassis = self._chassis_reference(t)
+        u_ff = self._feedforward(t, a_ref, ad_ref, add_ref, chassis)
+        sg, cg = self._steer_gains, self._chassis_gains
+        error = a_ref - st.alpha
+        self._steer_integral = np.clip(self._steer_integral + error * d.cycle_time,
+                                       -self._integral_limit, self._integral_limit)
+        q_steer = self._steer_inertia * (sg.kp * error + sg.kd * (ad_ref - st.alpha_dot)
+                                         + sg.ki * self._steer_integral)
+        rows, forces = [self._hold_rows], [q_steer]
+        if chassis is not None:
+            column = self._chassis_input_row(st.alpha)  # (1, 4)
+            inertia = self._chassis_inertia(st.alpha)
+            rate = {2: st.velocity[0], 3: st.velocity[1], 4: st.velocity[2]}[self.k]
+            q_ch = inertia * (cg.kp * (chassis[0] - st.s_chassis) + cg.kd * (chassis[1] - rate))
+            rows.append(column)
+            forces.append([q_ch])
+        u_fb = np.linalg.pinv(np.vstack(rows)) @ np.concatenate(forces)
+        return np.clip(u_ff + u_fb, -self._u_max, self._u_max)
+
+    def _feedforward(self, t, a_ref, ad_ref, add_ref, chassis) -> np.ndarray:
+        g = self.sheet.geometry
+        k = self.k
+        q = np.zeros(9)
+        q[3:5] = a_ref
+        if k == 1:
+            sd, sdd = ad_ref, add_ref
+        elif k == 2:
+            ref = self.step.evaluate(np.array([t]))
+            if "alpha_v" in self.step.trajectories:
+                av = ref["alpha_v"]
+                sd = np.array([av[1][0], chassis[1]])
+                sdd = np.array([av[2][0], chassis[2]])
+            else:
+                sd = np.array([0.0, chassis[1]])
+                sdd = np.array([0.0, chassis[2]])
+        else:
+            sd, sdd = np.array([chassis[1]]), np.array([chassis[2]])
+        u = dynamics.feedforward(k, q[None], sd[None], sdd[None], self.p_nominal, g,
+                                 self.sheet.drive.i_G)
+        return np.asarray(u)[0]
+
+    def _alpha_v(self, alpha: np.ndarray) -> float:
+        if self.k != 2:
+            return 0.0
+        return float(kinematics.alpha_v_from_alpha(alpha[None], self.sheet.geometry)[0])
+
+    def _chassis_column(self, alpha: np.ndarray) -> np.ndarray:
+        """The column of H_k belonging to the chassis coordinate, (9,)."""
+        g = self.sheet.geometry
+        if self.k == 2:
+            av = self._alpha_v(alpha)
+            alpha_icr = kinematics.f_icr(np.array([av]), g)
+            return kinematics.H(2, alpha_icr, g)[0][:, 1]
+        return kinematics.H(self.k, kinematics.mode_alpha(self.k, g)[None], g)[0][:, 0]
+
+    def _chassis_input_row(self, alpha: np.ndarray) -> np.ndarray:
+        return (self.sheet.drive.i_G * self._chassis_column(alpha)[5:9])[None]
+
+    def _chassis_inertia(self, alpha: np.ndarray) -> float:
+        n, g = self.sheet.nominal, self.sheet.geometry
+        h = self._chassis_column(alpha)
+        return float(n.m_ch * (h[0] ** 2 + h[1] ** 2) + (n.C_ch + n.C_l + n.C_r) * h[2] ** 2
+                     + n.B_w * np.sum(h[5:9] ** 2))
+
+
+def quintic_alignment(alpha_from, alpha_to, duration: float, name: str = "align") -> ExcitationStep:
+    """Mode-1 wheel alignment at rest: α moves from ``alpha_from`` to ``alpha_to`` (2,) [rad] on a
+    quintic (rest to rest) in ``duration`` s; the chassis stays where it is."""
+    from .excitation import AnalyticTrajectory
+
+    def make(a0: float, a1: float):
+        def f(tau):
+            s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+            ds = 30 * tau**2 - 60 * tau**3 + 30 * tau**4
+            dds = 60 * tau - 180 * tau**2 + 120 * tau**3
+            return a0 + (a1 - a0) * s, (a1 - a0) * ds, (a1 - a0) * dds
+        return AnalyticTrajectory(duration, f)
+
+    return ExcitationStep(name, 1, {"alpha_l": make(alpha_from[0], alpha_to[0]),
+                                       "alpha_r": make(alpha_from[1], alpha_to[1])})

@@ -1,0 +1,127 @@
+"""Tests for ident.excitation (paper section 6.2)."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from ident import excitation as ex
+
+L, B, A = 1.2, 0.9, 0.08
+
+
+def _dense(tr, n=30001):
+    t = np.linspace(0.0, tr.duration, n)
+    return (t, *tr.evaluate(t))
+
+
+def test_fourier_rest_to_rest_and_derivatives():
+    tr = ex.design_fourier_trajectory(duration=3.0, q_min=-0.5, q_max=0.5, qd_max=1.0, qdd_max=5.0, seed=7)
+    t, q, qd, qdd = _dense(tr)
+    assert abs(q[0]) < 1e-12 and abs(q[-1]) < 1e-9
+    for v in (qd[0], qd[-1], qdd[0], qdd[-1]):
+        assert abs(v) < 1e-9
+    # analytic derivatives match numerical ones
+    dt = t[1] - t[0]
+    assert np.allclose(np.gradient(q, dt, edge_order=2), qd, atol=1e-5 * np.max(np.abs(qd)))
+    assert np.allclose(np.gradient(qd, dt, edge_order=2), qdd, atol=1e-4 * np.max(np.abs(qdd)))
+    # at rest outside [0, T]
+    q_out, qd_out, qdd_out = tr.evaluate(np.array([-1.0, tr.duration + 1.0]))
+    assert np.allclose(q_out, tr.q_start) and not qd_out.any() and not qdd_out.any()
+
+
+def test_fourier_rejects_coefficients_not_at_rest():
+    with pytest.raises(ValueError, match="rest conditions"):
+        ex.FourierTrajectory(omega_f=1.0, a=[1.0, 0.0], b=[0.0, 0.0])
+    a, b = ex.FourierTrajectory.project_to_rest([1.0, 0.3, -0.2], [0.5, 0.1, 0.4])
+    tr = ex.FourierTrajectory.from_start(2.0, a, b, q_start=0.2)
+    assert abs(tr.position(0.0) - 0.2) < 1e-12 and abs(tr.position(tr.duration) - 0.2) < 1e-12
+    back = ex.FourierTrajectory.from_json_dict(tr.to_json_dict())
+    assert np.array_equal(back.a, tr.a) and np.array_equal(back.b, tr.b) and back.q0 == tr.q0
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.3])
+def test_design_respects_limits(offset):
+    lim = dict(q_min=-0.6 + offset, q_max=0.6 + offset, qd_max=0.8, qdd_max=3.0)
+    tr = ex.design_fourier_trajectory(duration=2.5, q_start=offset, seed=3, **lim)
+    _, q, qd, qdd = _dense(tr)
+    assert q.min() >= lim["q_min"] - 1e-9 and q.max() <= lim["q_max"] + 1e-9
+    assert np.max(np.abs(qd)) <= lim["qd_max"] + 1e-9
+    assert np.max(np.abs(qdd)) <= lim["qdd_max"] + 1e-9
+    # at least one limit is (nearly) active: the trajectory is scaled to the limits
+    util = max(
+        (q.max() - offset) / (lim["q_max"] - offset),
+        (offset - q.min()) / (offset - lim["q_min"]),
+        np.max(np.abs(qd)) / lim["qd_max"],
+        np.max(np.abs(qdd)) / lim["qdd_max"],
+    )
+    assert util > 0.98
+
+
+def test_design_deterministic_and_fast():
+    kw = dict(duration=15.0, q_min=-1.0, q_max=1.0, qd_max=1.0, qdd_max=4.0)
+    t0 = time.perf_counter()
+    a = ex.design_fourier_trajectory(seed=11, **kw)
+    assert time.perf_counter() - t0 < 1.0
+    b = ex.design_fourier_trajectory(seed=11, **kw)
+    c = ex.design_fourier_trajectory(seed=12, **kw)
+    assert np.array_equal(a.a, b.a) and np.array_equal(a.b, b.b)
+    assert not np.allclose(a.a, c.a)
+
+
+def test_design_invalid_limits():
+    with pytest.raises(ValueError):
+        ex.design_fourier_trajectory(duration=2.0, q_min=0.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
+    with pytest.raises(ValueError):
+        ex.design_fourier_trajectory(duration=2.0, q_min=-1.0, q_max=1.0, qd_max=0.0, qdd_max=1.0)
+
+
+def test_campaign_steps():
+    steps = ex.identification_campaign(l=L, b=B, duration=2.0, x_max=0.5, gamma_max=0.4)
+    assert [s.name for s in steps] == ["steer_left", "steer_right", "straight", "rotation"]
+    assert [s.mode for s in steps] == [1, 1, 2, 4]
+    assert steps[0].channels == ("steer_left/alpha_l",)
+    assert steps[2].channels == ("straight/x_ch",)
+    t = steps[0].time(2e-3)
+    d = steps[0].evaluate(t)
+    assert set(d) == {"alpha_l", "alpha_r"} and not d["alpha_r"][0].any()
+    q = d["alpha_l"][0]
+    assert np.max(np.abs(q)) <= ex.ALPHA_MAX_DEFAULT + 1e-9 and np.max(np.abs(q)) > 0.1
+    x = steps[2].evaluate(steps[2].time())["x_ch"][0]
+    assert np.max(np.abs(x)) <= 0.5 + 1e-9
+    d4 = steps[3].evaluate(np.array([0.5]))
+    assert np.isclose(d4["alpha_l"][0][0], -math.atan(L / B)) and np.isclose(d4["alpha_r"][0][0], math.atan(L / B))
+    assert np.max(np.abs(steps[3].evaluate(steps[3].time())["gamma_ch"][0])) <= 0.4 + 1e-9
+    with pytest.raises(TypeError):
+        ex.identification_campaign(l=L, b=B, duration=2.0, bogus=1.0)
+
+
+def test_lane_change():
+    step = ex.lane_change(l=L, duration=3.0, distance=2.0, lane_width=0.5, x_dot_max=2.0)
+    assert step.mode == 2 and set(step.channels) == {"lane_change/alpha_v", "lane_change/x_ch"}
+    t = np.linspace(0.0, step.duration, 6001)
+    d = step.evaluate(t)
+    av, avd, avdd = d["alpha_v"]
+    x, xd, xdd = d["x_ch"]
+    for v in (av[0], av[-1], avd[0], avd[-1], avdd[0], avdd[-1], xd[0], xd[-1], xdd[0], xdd[-1], x[0]):
+        assert abs(v) < 1e-9
+    assert np.isclose(x[-1], 2.0)
+    dt = t[1] - t[0]
+    assert np.allclose(np.gradient(x, dt, edge_order=2), xd, atol=1e-4)
+    assert np.allclose(np.gradient(av, dt, edge_order=2), avd, atol=1e-4)
+    assert np.allclose(np.gradient(avd, dt, edge_order=2), avdd, atol=1e-3)
+    _, y_w, gamma = ex.mode2_path(t, xd, av, L)
+    assert abs(y_w[-1] - 0.5) < 1e-4 and abs(gamma[-1]) < 1e-9
+    with pytest.raises(ValueError):
+        ex.lane_change(l=L, duration=3.0, distance=2.0, x_dot_max=1.0)
+    with pytest.raises(ValueError, match="not reachable"):
+        ex.lane_change(l=L, duration=3.0, distance=1.0, lane_width=5.0)
+
+
+def test_occupied_rectangle():
+    length, width = ex.occupied_rectangle(np.array([0.0, 0.7, -1.1, 0.2]), L, B, A)
+    assert np.isclose(length, L + 2.2) and np.isclose(width, math.hypot(L, B) + 2 * A)
+    step = ex.straight_excitation(duration=2.0, x_max=0.4)
+    length, _ = ex.occupied_rectangle(step.trajectories["x_ch"], L, B, A)
+    assert L < length <= L + 0.8 + 1e-9

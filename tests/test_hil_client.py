@@ -1,0 +1,214 @@
+"""hil.client.VehicleClient against hil.server.VehicleServer with a fake plant, in-process (virtual bus)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from hil.client import CommunicationError, DriveFaultError, VehicleClient
+from hil.drive402 import PowerState
+from hil.measurement import Measurement, VehicleInterface
+from hil.server import VehicleServer
+from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+
+RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
+
+
+@pytest.fixture
+def spec():
+    return f"virtual:hil-client-{uuid.uuid4().hex[:10]}"
+
+
+def make_client(spec, **kwargs):
+    return VehicleClient(spec, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                         **kwargs)
+
+
+def test_round_trip(spec):
+    plant = FakePlant()
+    with VehicleServer(plant, spec) as server, make_client(spec) as client:
+        assert isinstance(client, VehicleInterface)
+        np.testing.assert_allclose(client.rated_torque, 2.0)
+        np.testing.assert_allclose(client.max_torque, 6.0)
+        assert all(d.state is PowerState.OPERATION_ENABLED for d in server.drives)
+        tau = np.array([0.1234, -0.5, 10.0, -1.0])
+        m0 = client.exchange(tau)
+        assert isinstance(m0, Measurement) and m0.time == 0.0
+        expected = np.array([0.124, -0.5, 6.0, -1.0])          # 62 ‰ rounding; clip at 0x6072 = 300 %
+        np.testing.assert_allclose(plant.tau, expected)
+        np.testing.assert_allclose(m0.motor_torque, expected)  # torque actual = applied from now
+        np.testing.assert_allclose(m0.motor_position, 0.0)
+        np.testing.assert_allclose(m0.alpha, plant.alpha, atol=np.pi / 2**BITS)
+        for k in range(1, 20):
+            m = client.exchange(tau)
+            assert m.time == pytest.approx(k * T_S)
+        assert plant.steps == server.cycles == 20
+        # double integrator: ω = τ/J · t, θ = ½ τ/J t² (quantised by the encoder)
+        t = 19 * T_S
+        np.testing.assert_allclose(m.motor_velocity, expected / plant.inertia * t, atol=RAD_PER_INCREMENT)
+        np.testing.assert_allclose(m.motor_position, 0.5 * expected / plant.inertia * t**2,
+                                   atol=RAD_PER_INCREMENT)
+        assert m.motor_position.shape == (4,) and m.alpha.shape == (2,)
+
+
+def test_stop_disables_drives(spec):
+    plant = FakePlant()
+    with VehicleServer(plant, spec) as server:
+        client = make_client(spec).connect()
+        client.exchange(np.ones(4))
+        client.stop()
+        client.stop()                                           # idempotent
+        assert all(d.state is PowerState.READY_TO_SWITCH_ON for d in server.drives)
+        assert all(n.nmt_state == 127 for n in server.nodes)    # PRE-OPERATIONAL
+        with pytest.raises(CommunicationError):
+            client.exchange(np.zeros(4))
+
+
+def test_position_unwraps_across_32_bit_counter(spec):
+    start = (2**31 - 3000) * RAD_PER_INCREMENT                  # counter wraps during the run
+    omega = 1000.0                                              # rad/s → ~20 900 increments per cycle
+    plant = FakePlant(theta0=(start, -start, 0, 0), omega0=(omega, -omega, 0, 0))
+    with VehicleServer(plant, spec), make_client(spec) as client:
+        positions = np.array([client.exchange(np.zeros(4)).motor_position for _ in range(5)])
+    steps = np.diff(positions[:, :2], axis=0)
+    np.testing.assert_allclose(steps, [[omega * T_S, -omega * T_S]] * 4, atol=2 * RAD_PER_INCREMENT)
+    assert positions[-1, 0] > 2**31 * RAD_PER_INCREMENT             # continuous, not wrapped
+
+
+def test_alpha_range(spec):
+    plant = FakePlant(alpha=(np.pi, -np.pi / 2))
+    with VehicleServer(plant, spec), make_client(spec) as client:
+        alpha = client.exchange(np.zeros(4)).alpha
+    assert alpha[0] == pytest.approx(np.pi)                      # π, not −π: α ∈ (−π, π]
+    assert alpha[1] == pytest.approx(-np.pi / 2)
+
+
+def test_blf_records_every_frame(spec, tmp_path):
+    path = tmp_path / "bus.blf"
+    n = 10
+    with VehicleServer(FakePlant(), spec):
+        with make_client(spec, record=path) as client:
+            for _ in range(n):
+                client.exchange(np.full(4, 0.2))
+            recorder = client._recorder
+    frames = list(can.BLFReader(path))
+    assert len(frames) == recorder.frames > 15 * n
+    sync = [f for f in frames if f.arbitration_id == 0x80]
+    rpdo = [f for f in frames if 0x201 <= f.arbitration_id <= 0x204]
+    tpdo = [f for f in frames if 0x181 <= f.arbitration_id <= 0x186 or 0x281 <= f.arbitration_id <= 0x284]
+    assert (len(sync), len(rpdo), len(tpdo)) == (n, 4 * n, 10 * n)
+    assert not any(f.is_rx for f in sync + rpdo) and all(f.is_rx for f in tpdo)
+    assert {f.arbitration_id for f in frames} >= {0x000, 0x601, 0x581, 0x701}   # NMT, SDO, boot-up
+
+
+def test_blf_flushed_after_exception(spec, tmp_path):
+    path = tmp_path / "crash.blf"
+    with VehicleServer(FakePlant(), spec):
+        with pytest.raises(ZeroDivisionError):
+            with make_client(spec, record=path) as client:
+                client.exchange(np.zeros(4))
+                1 / 0
+    frames = list(can.BLFReader(path))
+    assert sum(f.arbitration_id == 0x80 for f in frames) == 1
+
+
+def test_timeout_raises_communication_error(spec):
+    plant = FakePlant()
+    server = VehicleServer(plant, spec).start()
+    client = make_client(spec, timeout=0.1).connect()
+    try:
+        client.exchange(np.zeros(4))
+        server.stop()
+        t0 = time.monotonic()
+        with pytest.raises(CommunicationError, match="no TPDO"):
+            client.exchange(np.zeros(4))
+        assert time.monotonic() - t0 < 0.5
+    finally:
+        client.stop()
+        server.stop()
+
+
+def test_no_vehicle_on_bus(spec):
+    t0 = time.monotonic()
+    with pytest.raises(CommunicationError, match="boot-up"):
+        make_client(spec, boot_timeout=0.2).connect()
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_drive_fault_after_master_pause_and_recovery(spec):
+    plant = FakePlant()
+    with VehicleServer(plant, spec, sync_timeout=0.05, watchdog_period=0.005) as server, \
+            make_client(spec) as client:
+        client.exchange(np.full(4, 0.5))
+        deadline = time.monotonic() + 2
+        while server.drives[0].state is not PowerState.FAULT:    # pause longer than the SYNC timeout
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert plant.tau.tolist() == [0, 0, 0, 0]
+        with pytest.raises(DriveFaultError) as info:
+            client.exchange(np.full(4, 0.5))
+        assert info.value.states[1] == "FAULT"
+        np.testing.assert_allclose(info.value.measurement.motor_torque, 0.0)
+        client.enable()
+        m = client.exchange(np.full(4, 0.5))
+        np.testing.assert_allclose(m.motor_torque, 0.5)
+
+
+def test_bad_torque_arguments(spec):
+    with VehicleServer(FakePlant(), spec), make_client(spec) as client:
+        with pytest.raises(ValueError):
+            client.exchange(np.zeros(3))
+        with pytest.raises(ValueError):
+            client.exchange([0, np.nan, 0, 0])
+
+
+def test_lean_mapping_from_eds(spec, tmp_path):
+    """Server and client with the same non-default EDS mapping (torque actual moved into TPDO1)."""
+    from hil.layout import DRIVE_EDS
+    text = DRIVE_EDS.read_text()
+    lean = text.replace("DefaultValue=0x60410010", "DefaultValue=0x60770010", 1)   # TPDO1: 0x6077 + 0x6064
+    path = tmp_path / "lean402.eds"
+    path.write_text(lean)
+    plant = FakePlant()
+    with VehicleServer(plant, spec, drive_eds=path), make_client(spec, drive_eds=path) as client:
+        m = client.exchange(np.full(4, 0.3))
+    np.testing.assert_allclose(m.motor_torque, 0.3)
+
+
+def test_deterministic_round_trip():
+    def run():
+        spec = f"virtual:hil-det-{uuid.uuid4().hex[:8]}"
+        plant = FakePlant()
+        with VehicleServer(plant, spec), make_client(spec) as client:
+            out = [client.exchange(np.sin(np.arange(4) + k / 7)) for k in range(50)]
+        return np.array([m.motor_position for m in out]), plant.theta
+    (a, ta), (b, tb) = run(), run()
+    assert np.array_equal(a, b) and np.array_equal(ta, tb)
+
+
+@pytest.mark.parametrize("module", ["hil", "hil.client", "hil.server", "hil.bus", "hil.measurement"])
+def test_hil_does_not_import_emulator(module):
+    code = (f"import sys, {module}; bad = [m for m in sys.modules if m.split('.')[0] == 'emulator'];"
+            f"assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_cycle_cost(spec, capsys):
+    """Lock-step cost of one cycle, client + server + fake plant in one process (printed, loosely bounded)."""
+    with VehicleServer(FakePlant(), spec), make_client(spec) as client:
+        tau = np.full(4, 0.1)
+        for _ in range(50):
+            client.exchange(tau)
+        n = 1000
+        t0 = time.perf_counter()
+        for _ in range(n):
+            client.exchange(tau)
+        us = (time.perf_counter() - t0) / n * 1e6
+    with capsys.disabled():
+        print(f"\nhil lock-step cycle: {us:.0f} µs (client + server + fake plant, virtual bus)")
+    assert us < 5000
