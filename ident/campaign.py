@@ -114,10 +114,12 @@ def occupied_rectangle(steps: list[ExcitationStep], sheet: DataSheet) -> dict:
 
 
 class Campaign:
-    """Runs the campaign against ``vehicle`` and records it into ``run_dir``.
+    """The planned campaign; ``run(vehicle)`` executes it and records into ``run_dir``.
+
+    Planning (trajectory design) happens here, before any vehicle is connected: drives fault when their
+    master stops sending SYNC, so nothing slow may happen between connecting and running.
 
     Args:
-        vehicle: the vehicle link.
         sheet: the vehicle's data sheet (geometry, drive, nominal parameters).
         run_dir: output directory (created; must not already hold a signals file).
         settings: durations and limits.
@@ -129,11 +131,10 @@ class Campaign:
         FileExistsError: ``run_dir`` already holds a recording.
     """
 
-    def __init__(self, vehicle: VehicleLink, sheet: DataSheet, run_dir: str | Path,
+    def __init__(self, sheet: DataSheet, run_dir: str | Path,
                  settings: CampaignSettings | None = None,
                  controller: ControllerSettings | None = None, source: str = "",
                  on_progress: Callable[[int, int, str], None] | None = None):
-        self.vehicle = vehicle
         self.sheet = sheet
         self.settings = settings or CampaignSettings()
         self.controller_settings = controller or ControllerSettings()
@@ -142,6 +143,9 @@ class Campaign:
         self.on_progress = on_progress
         self.steps = plan(sheet, self.settings)
         self.segments = self._segments()
+        # built now: the first one compiles the model (≈ 0.3 s), far longer than a SYNC timeout
+        self.controllers = [StepController(seg, sheet, self.controller_settings)
+                            for seg in self.segments]
         self.run_dir.mkdir(parents=True, exist_ok=True)
         if (self.run_dir / SIGNALS).exists():
             raise FileExistsError(f"{self.run_dir / SIGNALS} exists; choose a new run directory")
@@ -165,13 +169,15 @@ class Campaign:
         ts = self.sheet.drive.cycle_time
         return sum(_cycles(seg, ts) for seg in self.segments)
 
-    def run(self) -> dict:
-        """Execute all segments; returns the metadata written to ``metadata.json``.
+    def run(self, vehicle: VehicleLink) -> dict:
+        """Execute all segments on ``vehicle`` (connected, drives enabled); returns the metadata
+        written to ``metadata.json``.
 
         Raises:
             CampaignAborted: a communication error, a steering angle near the stops, or an interrupt
                 (KeyboardInterrupt); the vehicle is stopped and the recording kept.
         """
+        self.vehicle = vehicle
         ts = self.sheet.drive.cycle_time
         meta = self._metadata()
         meta["status"] = "running"
@@ -181,8 +187,7 @@ class Campaign:
         writer = SignalWriter(self.run_dir / SIGNALS)
         try:
             measurement = self.vehicle.exchange(np.zeros(4))
-            for seg in self.segments:
-                ctrl = StepController(seg, self.sheet, self.controller_settings)
+            for seg, ctrl in zip(self.segments, self.controllers):
                 start = measurement.time
                 for j in range(_cycles(seg, ts)):
                     u = ctrl.command(j * ts, measurement)

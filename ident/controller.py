@@ -81,6 +81,16 @@ class StepController:
             self._steer_inertia * self._steer_gains.ki)
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Evaluate the command path once: the model compiles on first use (≈ 0.1–0.3 s), which must
+        not happen between two SYNCs."""
+        a_ref, ad_ref, add_ref = self._alpha_reference(0.0)
+        self._feedforward(0.0, a_ref, ad_ref, add_ref, self._chassis_reference(0.0))
+        if self._chassis_reference(0.0) is not None:
+            self._chassis_input_row(a_ref)
+        odometry.chassis_velocity(a_ref[None], ad_ref[None], np.zeros((1, 4)), self.sheet.geometry)
 
     # -- references -------------------------------------------------------------------------
     def _alpha_reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

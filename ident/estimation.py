@@ -596,6 +596,7 @@ def estimate_single_axis(
     velocity_threshold: float = DEFAULT_VELOCITY_THRESHOLD,
     wheels: Sequence[str] | None = None,
     rank_tol: float = RANK_TOL,
+    correlation_lag: int = 0,
 ) -> SingleAxisResult:
     """Single-axis fit without ground contact: B_w β̈ + d_vw β̇ + d_cw tanh(β̇/ε) = i_G M_mot.
 
@@ -611,6 +612,8 @@ def estimate_single_axis(
         Rows with |β̇| below it are removed (rad/s).
     wheels : sequence of str, optional
         Wheel names, default ``fl, rl, fr, rr`` (or ``w0, w1, …`` if n_w ≠ 4).
+    correlation_lag : int
+        Newey–West lag for the covariance of filtered rows, as in :func:`estimate`.
 
     Returns
     -------
@@ -649,12 +652,21 @@ def estimate_single_axis(
         theta = np.column_stack([bdd[keep, j], bd[keep, j], np.tanh(bd[keep, j] / epsilon)])
         y = tq[keep, j]
         fit = _lstsq(theta, y, SINGLE_AXIS_NAMES, rank_tol)
+        if correlation_lag > 0:
+            fit.cov = _newey_west_cov(theta, fit.residual, np.zeros(len(y), dtype=object),
+                                      np.nonzero(keep)[0], correlation_lag)
         vals[w] = dict(zip(SINGLE_AXIS_NAMES, fit.p.tolist()))
         stds[w] = dict(zip(SINGLE_AXIS_NAMES, np.sqrt(np.diag(fit.cov)).tolist()))
         res[w] = _rms(fit.residual)
         all_theta.append(theta)
         all_y.append(y)
     pooled = _lstsq(np.vstack(all_theta), np.concatenate(all_y), SINGLE_AXIS_NAMES, rank_tol)
+    if correlation_lag > 0:
+        labels = np.concatenate([np.full(len(y), w, dtype=object) for w, y in zip(wheels, all_y)])
+        index = np.concatenate([np.nonzero(np.abs(bd[:, j]) >= velocity_threshold)[0]
+                                for j in range(n_w)])
+        pooled.cov = _newey_west_cov(np.vstack(all_theta), pooled.residual, labels, index,
+                                     correlation_lag)
     return SingleAxisResult(
         values=vals,
         std=stds,

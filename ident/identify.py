@@ -179,7 +179,7 @@ def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
     path = run_dir / SINGLE_AXIS_JSON
     if path.exists():
         data = json.loads(path.read_text())
-        return float(data["B_w"]["value"]), "single-axis identification (lifted vehicle)"
+        return float(data["pooled"]["B_w"]["value"]), "single-axis identification (lifted vehicle)"
     return sheet.nominal.B_w, "data sheet"
 
 

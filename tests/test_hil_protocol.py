@@ -293,8 +293,8 @@ def test_sync_timeout_stops_torque_and_faults(channel, master, plant):
         master.cycle([rpdo1(2, 0x0F, 500)])
         assert plant.tau[1] == pytest.approx(1.0)
         start = len(master.frames)
-        wait_for(lambda: server.drives[1].state is PowerState.FAULT, 1.0)   # the master went silent
-        assert plant.tau[1] == 0.0                                          # set by the watchdog
+        wait_for(lambda: plant.tau[1] == 0.0, 1.0)              # the master went silent: watchdog
+        assert server.drives[1].state is PowerState.FAULT
         wait_for(lambda: 0x82 in master.ids(start))
         emcy = next(m for m in master.frames[start:] if m.arbitration_id == 0x82)
         assert struct.unpack_from("<H", emcy.data)[0] == 0x8100
@@ -318,6 +318,7 @@ def test_rpdo_timeout_stops_torque(channel, master, plant):
             assert time.monotonic() < end
             master.cycle()
             time.sleep(0.005)
+        master.cycle()
         assert plant.tau[2] == 0.0
         codes = [struct.unpack_from("<H", m.data)[0] for m in master.frames[start:] if m.arbitration_id == 0x83]
         assert 0x8250 in codes

@@ -1,0 +1,37 @@
+"""Truth comparison: identified parameters against the emulated vehicle's true ones.
+
+A separate, explicit step after identification; nothing here feeds back into estimation.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from emulator.description import VehicleDescription
+from ident.identify import load_identification
+
+COMPARISON_JSON = "comparison.json"
+
+
+def compare_with_truth(run_dir: str | Path, description: VehicleDescription) -> dict:
+    """Identified vs. true per parameter: relative error and error in standard deviations.
+
+    Writes ``comparison.json`` into ``run_dir`` and returns its content.
+
+    Raises:
+        RunDirectoryError: no identification.json in ``run_dir``.
+    """
+    run_dir = Path(run_dir)
+    result = load_identification(run_dir)
+    truth = description.truth
+    rows = {}
+    for name, value in result.values.items():
+        true = getattr(truth, name)
+        std = result.std[name]
+        rows[name] = {"identified": value, "std": std, "true": true,
+                      "relative_error": (value - true) / true,
+                      "error_in_std": (value - true) / std if std > 0 else float("inf")}
+    report = {"vehicle": description.name, "source": description.source, "parameters": rows,
+              "B_w": {"fixed": result.B_w, "true": truth.B_w}}
+    (run_dir / COMPARISON_JSON).write_text(json.dumps(report, indent=2))
+    return report

@@ -1,0 +1,43 @@
+"""The embedded vehicle: the emulator served as CANopen nodes on an in-process virtual bus, and the
+client connected to it — the same client and protocol that drive a real vehicle on ``socketcan:can0``.
+
+This module is part of the composition root (the CLI); ``ident`` and ``fmu`` never import it.
+"""
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+from pathlib import Path
+from typing import Iterator
+
+from emulator.description import VehicleDescription
+from emulator.vehicle import Emulator
+from hil.client import VehicleClient
+from hil.server import VehicleServer
+
+_channels = itertools.count()
+
+
+@contextlib.contextmanager
+def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: bool = False,
+                     gui: bool = False, record: str | Path | None = None) -> Iterator[VehicleClient]:
+    """Start the emulated vehicle on a private virtual bus and yield a connected client.
+
+    Args:
+        description: the vehicle to emulate.
+        seed: the emulator's noise seed.
+        lifted: chassis jacked up, wheels free (single-axis identification).
+        gui: show PyBullet's GUI.
+        record: BLF file for every frame on the bus.
+    """
+    bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
+    emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui)
+    server = VehicleServer(emulator, bus)
+    try:
+        server.start()
+        with VehicleClient.from_drive(description.drive, bus, record=record) as client:
+            yield client
+    finally:
+        server.stop()
+        emulator.close()
