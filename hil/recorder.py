@@ -7,11 +7,14 @@ is :class:`can.BLFWriter` for ``.blf`` (Vector tools replay it); python-can's ot
 """
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from pathlib import Path
 
 import can
+
+logger = logging.getLogger(__name__)
 
 
 class BusRecorder(can.Listener):
@@ -19,25 +22,41 @@ class BusRecorder(can.Listener):
 
     Args:
         path: log file; the suffix selects the format (``.blf`` → :class:`can.BLFWriter`).
+        channel: log channel number written for every frame.
     Raises:
         ValueError: unknown suffix (from :class:`can.Logger`).
     Attributes:
         frames: number of frames written so far.
+        errors: number of frames the writer failed on.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, channel: int = 1):
         self.path = Path(path)
+        self.channel = channel
         self._writer = can.BLFWriter(self.path) if self.path.suffix.lower() == ".blf" else can.Logger(self.path)
         self._lock = threading.Lock()
         self._open = True
         self.frames = 0
+        self.errors = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        """Record a received frame (called by the notifier thread)."""
+        """Record a received frame (called by the notifier thread). Never raises: a failing writer must
+        not stop the master's reception; failures are counted in ``errors`` and logged once."""
         with self._lock:
-            if self._open:
+            if not self._open:
+                return
+            # All frames go to one log channel: python-can writers derive a number from the bus's
+            # channel name (e.g. digits of a virtual channel), which need not fit the format.
+            original, msg.channel = msg.channel, self.channel
+            try:
                 self._writer.on_message_received(msg)
                 self.frames += 1
+            except Exception:                      # noqa: BLE001
+                self.errors += 1
+                if self.errors == 1:
+                    logger.exception("bus recorder %s: cannot write a frame", self.path)
+            finally:
+                msg.channel = original
 
     def on_transmit(self, msg: can.Message) -> None:
         """Record a frame this master sent; stamps it now and marks it as transmitted (``is_rx=False``)."""

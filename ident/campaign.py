@@ -61,7 +61,7 @@ class CampaignSettings:
     gamma_max: float = 1.0
     gamma_dot_max: float = 0.8
     gamma_ddot_max: float = 1.5
-    lane_distance: float = 5.0
+    lane_distance: float = 4.5
     lane_width: float = 1.0
     n_harmonics: int = 5
     seed: int = 0

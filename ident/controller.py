@@ -79,6 +79,8 @@ class StepController:
         # anti-windup: the integral may supply at most 1.5 × the nominal steering Coulomb friction
         self._integral_limit = 1.5 * np.array([n.d_cl, n.d_cr]) / (
             self._steer_inertia * self._steer_gains.ki)
+        # errors within the steering sensor's quantization are not integrated (no wind-up on an LSB)
+        self._integral_deadband = 1.5 * 2 * np.pi / 2**d.steering_sensor_bits
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
         self._warm_up()
@@ -135,7 +137,8 @@ class StepController:
         u_ff = self._feedforward(t, a_ref, ad_ref, add_ref, chassis)
         sg, cg = self._steer_gains, self._chassis_gains
         error = a_ref - st.alpha
-        self._steer_integral = np.clip(self._steer_integral + error * d.cycle_time,
+        integrate = np.where(np.abs(error) > self._integral_deadband, error, 0.0)
+        self._steer_integral = np.clip(self._steer_integral + integrate * d.cycle_time,
                                        -self._integral_limit, self._integral_limit)
         q_steer = self._steer_inertia * (sg.kp * error + sg.kd * (ad_ref - st.alpha_dot)
                                          + sg.ki * self._steer_integral)

@@ -114,9 +114,15 @@ def step_blocks(st: StepSignals, sheet: DataSheet, coordinates: tuple[str, ...] 
     return blocks
 
 
+#: The coordinate each identification step excites (section 6.2); the held side of a steering step
+#: stands still in stiction and contributes no rows.
+EXCITED = {"steer_left": ("alpha_l",), "steer_right": ("alpha_r",), "straight": ("x_ch",),
+           "rotation": ("gamma_ch",)}
+
+
 def identification_blocks(signals: Signals, sheet: DataSheet) -> list[RegressorBlock]:
-    """All rows of the four identification steps (22): modes 1 (both sides), 2 with α_v ≡ 0 (x_ch
-    only), 4.
+    """All rows of the four identification steps (22): mode 1 (the steered side), mode 2 with
+    α_v ≡ 0 (x_ch), mode 4 (γ_ch).
 
     Raises:
         RunDirectoryError: a step is missing from the recording.
@@ -124,8 +130,7 @@ def identification_blocks(signals: Signals, sheet: DataSheet) -> list[RegressorB
     blocks = []
     for step in IDENTIFICATION_STEPS:
         st = generalized_signals(_step(signals, step), sheet)
-        keep = ("x_ch",) if step == "straight" else None
-        blocks += step_blocks(st, sheet, keep)
+        blocks += step_blocks(st, sheet, EXCITED[step])
     return blocks
 
 

@@ -100,7 +100,10 @@ def campaign(
         _single_axis(out, bus, vehicle, sheet, seed, gui)
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     source = bus or "embedded emulator (virtual CAN bus)"
-    run = Campaign(sheet, out, settings, source=source)
+    try:
+        run = Campaign(sheet, out, settings, source=source)
+    except ValueError as exc:
+        _fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
         with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG) as link:
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))

@@ -1,0 +1,125 @@
+"""Benchmarks, one command: ``python benchmarks/run.py [--quick]``.
+
+Measured in the same run, so the ratios hold on a noisy shared machine:
+1. emulator physics step vs. bare PyBullet stepping of the same URDF (same time step, no drives);
+2. one lock-step CANopen cycle (client + server + emulator, virtual bus) vs. the bare physics of a cycle;
+3. the lock-step campaign (quick or full) vs. real time.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet
+from pybullet_utils.bullet_client import BulletClient
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from emulator.description import VehicleDescription  # noqa: E402
+from emulator.urdf import vehicle_urdf  # noqa: E402
+from emulator.vehicle import Emulator  # noqa: E402
+
+
+def best_of(fn, repeats: int = 3) -> float:
+    """Fastest of ``repeats`` runs of fn() (s): the least disturbed by other load."""
+    return min(fn() for _ in range(repeats))
+
+
+def bare_pybullet_step(description: VehicleDescription, steps: int) -> float:
+    pb = BulletClient(connection_mode=pybullet.DIRECT)
+    pb.setPhysicsEngineParameter(fixedTimeStep=0.001, numSubSteps=0, numSolverIterations=50)
+    pb.setGravity(0, 0, -9.81)
+    pb.createMultiBody(0, pb.createCollisionShape(pybullet.GEOM_PLANE))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "vehicle.urdf"
+        path.write_text(vehicle_urdf(description))
+        pb.loadURDF(str(path), [0, 0, description.geometry.r], flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+    for _ in range(300):
+        pb.stepSimulation()
+
+    def run() -> float:
+        t = time.perf_counter()
+        for _ in range(steps):
+            pb.stepSimulation()
+        return (time.perf_counter() - t) / steps
+
+    cost = best_of(run)
+    pb.disconnect()
+    return cost
+
+
+def emulator_step(description: VehicleDescription, steps: int) -> float:
+    with Emulator(description, seed=0) as emu:
+        def run() -> float:
+            t = time.perf_counter()
+            for k in range(steps):
+                emu.set_motor_torques(np.full(4, 0.3 * np.sin(k * 1e-3)))
+                emu.step(0.001)
+                if k % 2:
+                    emu.read_sensors()
+            return (time.perf_counter() - t) / steps
+
+        return best_of(run)
+
+
+def lockstep_cycle(description: VehicleDescription, cycles: int) -> float:
+    from qomni.embedded import embedded_vehicle
+
+    with embedded_vehicle(description, seed=0) as client:
+        def run() -> float:
+            t = time.perf_counter()
+            for k in range(cycles):
+                client.exchange(np.full(4, 0.3 * np.sin(k * 2e-3)))
+            return (time.perf_counter() - t) / cycles
+
+        return best_of(run)
+
+
+def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float]:
+    """(emulated s, wall s) of a lock-step campaign against the embedded emulator over CAN."""
+    from ident.campaign import Campaign, CampaignSettings
+    from ident.datasheet import DataSheet
+    from qomni.embedded import embedded_vehicle
+
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = CampaignSettings.quick() if quick else CampaignSettings()
+        run = Campaign(DataSheet.load(), tmp, settings)
+        with embedded_vehicle(description, seed=0) as client:
+            t = time.perf_counter()
+            run.run(client)
+            wall = time.perf_counter() - t
+        return run.total_cycles * description.drive.cycle_time, wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short campaign (default: full)")
+    args = parser.parse_args()
+    d = VehicleDescription.load()
+    steps = 2000 if args.quick else 5000
+    bare = bare_pybullet_step(d, steps)
+    emu = emulator_step(d, steps)
+    cycle = lockstep_cycle(d, 500 if args.quick else 1500)
+    emulated, wall = campaign(d, args.quick)
+    physics_per_cycle = bare * round(d.drive.cycle_time / 0.001)
+    rows = [
+        ("bare PyBullet step (same URDF, 1 ms)", f"{bare * 1e6:8.1f} µs", "1.00 (baseline)"),
+        ("emulator step (drives, friction, sensors)", f"{emu * 1e6:8.1f} µs", f"{emu / bare:.2f} × bare"),
+        ("lock-step CANopen cycle (2 ms emulated)", f"{cycle * 1e6:8.1f} µs",
+         f"{cycle / physics_per_cycle:.2f} × bare physics of a cycle"),
+        (f"campaign ({'quick' if args.quick else 'full'}, {emulated:.1f} s emulated)", f"{wall:8.1f} s",
+         f"{emulated / wall:.2f} × real time"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    print(f"{'benchmark':<{width}}  {'cost':>11}  ratio")
+    for name, cost, ratio in rows:
+        print(f"{name:<{width}}  {cost:>11}  {ratio}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,204 @@
+"""End to end: a short campaign against the emulator over CANopen, identification against the emulator's
+truth, odometry against its true pose, and the run directory (no truth in it or on the bus)."""
+import json
+import math
+import re
+import struct
+
+import can
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from emulator.description import VehicleDescription
+from emulator.vehicle import Emulator
+from hil.client import VehicleClient
+from hil.server import VehicleServer
+from ident import odometry
+from ident.campaign import Campaign, CampaignAborted, CampaignSettings
+from ident.datasheet import DataSheet
+from ident.identify import identify_run, validate_run
+from ident.recording import read_signals
+from qomni.cli import app
+
+pytestmark = pytest.mark.slow
+TRUTH_NAMES = ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "m_ch", "C_ch", "d_vw", "d_cw")
+
+
+class TruthTap:
+    """Plant proxy for tests: records the true pose whenever the server samples the sensors (in the
+    server thread, at the SYNC instant, so it lines up with the measurement)."""
+
+    def __init__(self, emulator: Emulator):
+        self.emulator = emulator
+        self.description = emulator.description
+        self.poses: list[np.ndarray] = []
+
+    def set_motor_torques(self, motor_torque) -> None:
+        self.emulator.set_motor_torques(motor_torque)
+
+    def step(self, duration: float) -> None:
+        self.emulator.step(duration)
+
+    def read_sensors(self):
+        self.poses.append(self.emulator.true_state().pose)
+        return self.emulator.read_sensors()
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("quick_run")
+    description = VehicleDescription.load()
+    campaign = Campaign(DataSheet.load(), run_dir, CampaignSettings.quick(), source="test")
+    tap = TruthTap(Emulator(description, seed=5))
+    bus = "virtual:test-campaign-e2e"
+    server = VehicleServer(tap, bus).start()
+    try:
+        with VehicleClient.from_drive(description.drive, bus, record=run_dir / "bus.blf") as client:
+            campaign.run(client)
+    finally:
+        server.stop()
+        tap.emulator.close()
+    result = identify_run(run_dir)
+    validation = validate_run(run_dir)
+    return run_dir, np.array(tap.poses), description, result, validation
+
+
+def test_identified_parameters_match_the_emulator_truth(quick_run):
+    _, _, description, result, _ = quick_run
+    truth = description.truth
+    for name in ("m_ch", "C_ch", "d_vw", "d_cw"):
+        assert abs(result.values[name] / getattr(truth, name) - 1) < 0.03, name
+    for name in ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr"):
+        error = result.values[name] - getattr(truth, name)
+        assert abs(error / getattr(truth, name)) < 0.15, name
+        assert abs(error) < 3 * result.std[name], name
+    assert 1 < result.condition_number < 100
+
+
+def test_lane_change_validation(quick_run):
+    validation = quick_run[4]
+    assert validation.nrmse["lane_change/x_ch"] <= 0.10
+    assert validation.nrmse["lane_change/alpha_v"] < 0.5
+
+
+def test_odometry_pose_follows_the_emulator_after_each_step(quick_run):
+    run_dir, poses, description, _, _ = quick_run
+    signals = read_signals(run_dir / "signals.csv")
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    sheet = DataSheet.load()
+    beta = signals.motor_position / sheet.drive.i_G
+    pose, _ = odometry.odometry(signals.time, signals.alpha, beta, sheet.geometry)
+    true = poses[1:len(signals) + 1] - poses[0]  # the first sample is the campaign's start exchange
+    assert len(true) == len(signals)
+    travelled = 0.0
+    for seg in meta["segments"]:
+        j = int(np.searchsorted(signals.time, seg["t_end"]))
+        j = min(j, len(signals) - 1)
+        travelled = max(travelled, float(np.linalg.norm(true[j, :2])))
+        position_error = np.linalg.norm(pose[j, :2] - true[j, :2])
+        heading_error = abs(math.remainder(pose[j, 2] - true[j, 2], 2 * math.pi))
+        assert position_error < 0.02 + 0.01 * travelled, (seg["name"], position_error)
+        assert heading_error < 0.01, (seg["name"], heading_error)
+
+
+def test_run_directory_holds_the_recording_and_no_truth(quick_run):
+    run_dir, _, description, _, _ = quick_run
+    for name in ("signals.csv", "metadata.json", "identification.json", "validation.json", "bus.blf"):
+        assert (run_dir / name).exists(), name
+    ident = json.loads((run_dir / "identification.json").read_text())
+    for name in TRUTH_NAMES:
+        entry = ident["parameters"][name]
+        assert set(entry) >= {"value", "std", "unit"}
+    assert ident["parameters"]["B_w"]["fixed"] is True
+    assert "condition_number" in ident
+    truth = {getattr(description.truth, n) for n in TRUTH_NAMES}
+    number = re.compile(r"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+    for path in run_dir.iterdir():
+        if path.suffix in (".json", ".csv"):
+            text = path.read_text()
+            if path.suffix == ".csv":  # time stamps (column 1) may hit a value like 2.482 s
+                text = "\n".join(line.partition(",")[2] for line in text.splitlines())
+            assert "truth" not in text.lower(), path.name
+            leaked = truth & {float(tok) for tok in number.findall(text)}
+            assert not leaked, (path.name, leaked)
+
+
+def test_nothing_of_the_truth_is_on_the_bus(quick_run):
+    run_dir, _, description, _, _ = quick_run
+    allowed = {0x000, 0x080} | {base + n for n in range(1, 7)
+                                for base in (0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x400, 0x480,
+                                             0x500, 0x580, 0x600, 0x700)}
+    payload = bytearray()
+    frames = 0
+    with can.BLFReader(str(run_dir / "bus.blf")) as log:
+        for msg in log:
+            frames += 1
+            assert msg.arbitration_id in allowed, hex(msg.arbitration_id)
+            payload += bytes(msg.data)
+    assert frames > 10_000
+    for name in TRUTH_NAMES:
+        value = getattr(description.truth, name)
+        for fmt in ("<f", "<d"):
+            assert struct.pack(fmt, value) not in payload, name
+
+
+def test_cli_identify_validate_compare_redo_from_the_recording(quick_run):
+    run_dir = quick_run[0]
+    runner = CliRunner()
+    first = json.loads((run_dir / "identification.json").read_text())
+    result = runner.invoke(app, ["identify", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((run_dir / "identification.json").read_text()) == first
+    result = runner.invoke(app, ["validate", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    assert (run_dir / "fig5_identification.png").stat().st_size > 10_000
+    assert (run_dir / "fig6_validation.png").stat().st_size > 10_000
+    result = runner.invoke(app, ["compare", str(run_dir)])
+    assert result.exit_code == 0, result.output
+    report = json.loads((run_dir / "comparison.json").read_text())
+    assert abs(report["parameters"]["m_ch"]["relative_error"]) < 0.03
+
+
+def test_cli_reports_bad_run_directories_clearly(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(app, ["identify", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "signals.csv" in " ".join(result.output.split())
+    (tmp_path / "signals.csv").write_text("time [s]\n")
+    result = runner.invoke(app, ["campaign", "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "already holds a campaign" in " ".join(result.output.split())
+
+
+class FakeVehicle:
+    """A vehicle that stands still and fails after ``fail_after`` exchanges."""
+
+    def __init__(self, fail_after: int, exc: BaseException):
+        self.cycles, self.fail_after, self.exc = 0, fail_after, exc
+        self.stopped = False
+
+    def exchange(self, motor_torque):
+        if self.cycles == self.fail_after:
+            raise self.exc
+        self.cycles += 1
+        from hil.measurement import Measurement
+
+        return Measurement(time=self.cycles * 0.002, motor_position=np.zeros(4),
+                           motor_velocity=np.zeros(4), motor_torque=np.asarray(motor_torque, float),
+                           alpha=np.zeros(2))
+
+    def stop(self):
+        self.stopped = True
+
+
+@pytest.mark.parametrize("exc", [KeyboardInterrupt(), ConnectionError("bus off")])
+def test_interrupted_campaign_stops_the_wheels_and_keeps_the_recording(tmp_path, exc):
+    vehicle = FakeVehicle(fail_after=400, exc=exc)
+    campaign = Campaign(DataSheet.load(), tmp_path, CampaignSettings.quick())
+    with pytest.raises(CampaignAborted):
+        campaign.run(vehicle)
+    assert vehicle.stopped
+    assert len(read_signals(tmp_path / "signals.csv")) == 399
+    meta = json.loads((tmp_path / "metadata.json").read_text())
+    assert meta["status"].startswith("aborted")
