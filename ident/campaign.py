@@ -53,8 +53,8 @@ class CampaignSettings:
     align_duration: float = 2.0
     rest_duration: float = 0.5
     alpha_max: float = 0.6
-    alpha_dot_max: float = 1.5
-    alpha_ddot_max: float = 6.0
+    alpha_dot_max: float = 2.5
+    alpha_ddot_max: float = 10.0
     x_max: float = 1.2
     x_dot_max: float = 0.8
     x_ddot_max: float = 1.0
@@ -64,6 +64,8 @@ class CampaignSettings:
     lane_distance: float = 4.5
     lane_width: float = 1.0
     n_harmonics: int = 5
+    steer_period: float = 4.0  # s, base period of the steering excitation (repeated over the step)
+    chassis_period: float = 5.0  # s, base period of the straight and rotation excitation
     seed: int = 0
 
     @classmethod
@@ -71,7 +73,8 @@ class CampaignSettings:
         """A short campaign (≈ 30 s emulated) for tests and smoke runs."""
         short = dict(steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
                      lane_change_duration=8.0, align_duration=1.5, rest_duration=0.3,
-                     lane_distance=3.0, lane_width=0.6, n_harmonics=4)
+                     alpha_dot_max=1.5, alpha_ddot_max=6.0, lane_distance=3.0, lane_width=0.6,
+                     n_harmonics=4)
         short.update(overrides)
         return cls(**short)
 
@@ -80,21 +83,31 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     """The four identification steps and the lane change, designed from ``settings``."""
     g, s = sheet.geometry, settings
     common = dict(n_harmonics=s.n_harmonics)
+    # A long step is several repetitions of a short base period: a single slow period would keep
+    # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
     steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
-                 alpha_ddot_max=s.alpha_ddot_max, **common)
+                 alpha_ddot_max=s.alpha_ddot_max, periods=_periods(s.steer_duration, s.steer_period),
+                 **common)
     return [
         excitation.steer_left_excitation(seed=s.seed + 1, **steer),
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),
         excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
                                        x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
+                                       periods=_periods(s.straight_duration, s.chassis_period),
                                        seed=s.seed + 3, **common),
         excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
                                        gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
-                                       gamma_ddot_max=s.gamma_ddot_max, seed=s.seed + 4, **common),
+                                       gamma_ddot_max=s.gamma_ddot_max,
+                                       periods=_periods(s.rotation_duration, s.chassis_period),
+                                       seed=s.seed + 4, **common),
         excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
                                lane_width=s.lane_width, x_dot_max=s.x_dot_max,
                                x_ddot_max=s.x_ddot_max),
     ]
+
+
+def _periods(duration: float, base_period: float) -> int:
+    return max(1, round(duration / base_period))
 
 
 def step_start_alpha(step: ExcitationStep) -> np.ndarray:

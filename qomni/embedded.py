@@ -18,6 +18,11 @@ from hil.server import VehicleServer
 
 _channels = itertools.count()
 
+#: SYNC-loss supervision of the embedded (lock-step) drives, s. In lock-step the physics does not
+#: advance without SYNC, so the timeout only has to detect a dead master; a shared 2-core machine can
+#: deschedule a Python master for longer than a real drive's 0.1 s.
+LOCKSTEP_SYNC_TIMEOUT = 1.0
+
 
 @contextlib.contextmanager
 def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: bool = False,
@@ -33,7 +38,7 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
     """
     bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
     emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui)
-    server = VehicleServer(emulator, bus)
+    server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT)
     try:
         server.start()
         with VehicleClient.from_drive(description.drive, bus, record=record) as client:
