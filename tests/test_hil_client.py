@@ -217,3 +217,17 @@ def test_cycle_cost(spec, capsys):
     with capsys.disabled():
         print(f"\nhil lock-step cycle: {us:.0f} µs (client + server + fake plant, virtual bus)")
     assert us < 5000
+
+
+def test_new_master_takes_over_after_a_crashed_one(spec):
+    plant = FakePlant()
+    with VehicleServer(plant, spec) as server:
+        crashed = make_client(spec).connect()
+        crashed.exchange(np.full(4, 0.5))
+        crashed._network.notifier.stop(1.0)          # the process dies: no stop(), drives stay enabled
+        crashed._bus.shutdown()
+        with make_client(spec) as client:            # reset communication faults the drives (0x6007)
+            m = client.exchange(np.full(4, 0.25))   # enable() did the fault reset
+            np.testing.assert_allclose(m.motor_torque, 0.25)
+            assert m.time == 0.0
+        assert all(d.state is PowerState.READY_TO_SWITCH_ON for d in server.drives)
