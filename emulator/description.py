@@ -12,7 +12,6 @@ from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 
-PARAMETER_NAMES = ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "m_ch", "C_ch", "d_vw", "d_cw", "B_w")
 
 
 class DescriptionError(ValueError):

@@ -460,6 +460,18 @@ class ExcitationStep:
         return out
 
 
+def _steer_excitation(side: str, *, duration: float, alpha_max: float, alpha_dot_max: float,
+                      alpha_ddot_max: float, n_harmonics: int, seed: int, **kw) -> ExcitationStep:
+    """Mode-1 step: α of ``side`` ("l" or "r") excited, the other side held at 0 (section 6.2)."""
+    tr = design_fourier_trajectory(
+        duration=duration, q_min=-alpha_max, q_max=alpha_max, qd_max=alpha_dot_max,
+        qdd_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw,
+    )
+    other = "r" if side == "l" else "l"
+    name = "steer_left" if side == "l" else "steer_right"
+    return ExcitationStep(name, 1, {f"alpha_{side}": tr}, {f"alpha_{other}": 0.0})
+
+
 def steer_left_excitation(
     *,
     duration: float = 15.0,
@@ -474,11 +486,8 @@ def steer_left_excitation(
 
     Limits in rad, rad/s, rad/s². Extra keywords go to :func:`design_fourier_trajectory`.
     """
-    tr = design_fourier_trajectory(
-        duration=duration, q_min=-alpha_max, q_max=alpha_max, qd_max=alpha_dot_max,
-        qdd_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw,
-    )
-    return ExcitationStep("steer_left", 1, {"alpha_l": tr}, {"alpha_r": 0.0})
+    return _steer_excitation("l", duration=duration, alpha_max=alpha_max, alpha_dot_max=alpha_dot_max,
+                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
 
 
 def steer_right_excitation(
@@ -492,11 +501,8 @@ def steer_right_excitation(
     **kw,
 ) -> ExcitationStep:
     """Step 2 (mode k = 1): α_r(t) Fourier excitation with |α_r| ≤ alpha_max (rad), α_l ≡ 0."""
-    tr = design_fourier_trajectory(
-        duration=duration, q_min=-alpha_max, q_max=alpha_max, qd_max=alpha_dot_max,
-        qdd_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw,
-    )
-    return ExcitationStep("steer_right", 1, {"alpha_r": tr}, {"alpha_l": 0.0})
+    return _steer_excitation("r", duration=duration, alpha_max=alpha_max, alpha_dot_max=alpha_dot_max,
+                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
 
 
 def straight_excitation(
