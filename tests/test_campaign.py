@@ -20,6 +20,7 @@ from ident.datasheet import DataSheet
 from ident.identify import identify_run, validate_run
 from ident.recording import read_signals
 from qomni.cli import app
+from qomni.embedded import LOCKSTEP_SYNC_TIMEOUT
 
 pytestmark = pytest.mark.slow
 TRUTH_NAMES = ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "m_ch", "C_ch", "d_vw", "d_cw")
@@ -52,7 +53,7 @@ def quick_run(tmp_path_factory):
     campaign = Campaign(DataSheet.load(), run_dir, CampaignSettings.quick(), source="test")
     tap = TruthTap(Emulator(description, seed=5))
     bus = "virtual:test-campaign-e2e"
-    server = VehicleServer(tap, bus).start()
+    server = VehicleServer(tap, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT).start()
     try:
         with VehicleClient.from_drive(description.drive, bus, record=run_dir / "bus.blf") as client:
             campaign.run(client)
