@@ -87,11 +87,16 @@ class ChannelComparison:
 
 @dataclass
 class ValidationResult:
-    """Per-channel comparison; ``channels`` maps label → :class:`ChannelComparison`."""
+    """Per-channel comparison; ``channels`` maps label → :class:`ChannelComparison`.
+
+    ``moving`` optionally holds, per channel, the same comparison over moving rows only
+    (``{"nrmse": float | None, "n_rows": int}``), which separates stiction from model error.
+    """
 
     channels: dict[str, ChannelComparison]
     velocity_threshold: float | dict | None = None
     parameters: dict[str, float] = field(default_factory=dict)
+    moving: dict[str, dict] = field(default_factory=dict)
 
     @property
     def nrmse(self) -> dict[str, float]:

@@ -190,8 +190,13 @@ def _print_validation(validation) -> None:
     table.add_column("Channel")
     table.add_column("NRMSE", justify="right")
     table.add_column("RMS error", justify="right")
+    table.add_column("NRMSE, moving rows", justify="right")
+    moving = validation.moving
     for channel, value in validation.nrmse.items():
-        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}")
+        m = moving.get(channel, {})
+        cell = (f"{100 * m['nrmse']:.1f} % ({m['n_rows']} rows)" if m.get("nrmse") is not None
+                else "no moving rows")
+        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell)
     console.print(table)
 
 
