@@ -5,6 +5,9 @@ Grammar: ``INTERFACE[:CHANNEL][@BITRATE]``, e.g. ``"virtual"``, ``"virtual:rig1"
 ``BITRATE`` is bit/s with an optional ``k``/``M`` suffix. Only ``virtual`` may omit the channel (it
 defaults to :data:`DEFAULT_VIRTUAL_CHANNEL`; all ``virtual`` buses of one process on one channel see
 each other's frames). ``udp_multicast`` is refused: this project never puts CAN traffic on a network.
+
+``socketcand`` (a hub, see :mod:`hil.hub`) takes ``socketcand:HOST:PORT/CHANNEL`` with HOST 127.0.0.1
+only, e.g. ``socketcand:127.0.0.1:29536/can0``.
 """
 from __future__ import annotations
 
@@ -25,9 +28,12 @@ class BusSpec:
     interface: str
     channel: str
     bitrate: int | None = None
+    host: str | None = None
+    port: int | None = None
 
     def __str__(self) -> str:
-        text = f"{self.interface}:{self.channel}"
+        where = self.channel if self.host is None else f"{self.host}:{self.port}/{self.channel}"
+        text = f"{self.interface}:{where}"
         return text if self.bitrate is None else f"{text}@{self.bitrate}"
 
 
@@ -57,7 +63,26 @@ def parse_bus_spec(spec: str) -> BusSpec:
         if interface != "virtual" or sep:
             raise ValueError(f"bus spec {spec!r}: missing channel, write e.g. '{interface}:CHANNEL'")
         channel = DEFAULT_VIRTUAL_CHANNEL
+    if interface == "socketcand":
+        return _socketcand_spec(channel, bitrate, spec)
     return BusSpec(interface, channel, bitrate)
+
+
+_SOCKETCAND = re.compile(r"^(?P<host>[^:/]+):(?P<port>\d+)/(?P<channel>\S+)$")
+LOOPBACK = "127.0.0.1"
+
+
+def _socketcand_spec(where: str, bitrate: int | None, spec: str) -> BusSpec:
+    match = _SOCKETCAND.match(where)
+    if not match:
+        raise ValueError(f"bus spec {spec!r}: socketcand needs 'socketcand:127.0.0.1:PORT/CHANNEL'")
+    host, port = match.group("host"), int(match.group("port"))
+    if host != LOOPBACK:
+        raise ValueError(f"bus spec {spec!r}: socketcand host must be {LOOPBACK}: this project never "
+                         "puts CAN traffic on a network")
+    if not 1 <= port <= 65535:
+        raise ValueError(f"bus spec {spec!r}: port {port} is not in 1..65535")
+    return BusSpec("socketcand", match.group("channel"), bitrate, host, port)
 
 
 def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
@@ -70,6 +95,10 @@ def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
     parsed = spec if isinstance(spec, BusSpec) else parse_bus_spec(spec)
     if parsed.bitrate is not None:
         kwargs.setdefault("bitrate", parsed.bitrate)
+    if parsed.host is not None:
+        kwargs.setdefault("host", parsed.host)
+        kwargs.setdefault("port", parsed.port)
+        kwargs.setdefault("tcp_tune", True)
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
 
 

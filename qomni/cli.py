@@ -109,6 +109,9 @@ def campaign(
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         _fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
+    from hil.dbc import write_dbc
+
+    write_dbc(out / "bus.dbc")  # decodes bus.blf in CANoe, cantools, candump-based tools
     rect = json.loads((out / "metadata.json").read_text())["occupied_rectangle"]
     console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
                   f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
@@ -253,6 +256,25 @@ def compare(
                       f"{100 * row['relative_error']:+.2f} %", f"{row['error_in_std']:+.2f}")
     console.print(table)
     console.print(f"written {run_dir / 'comparison.json'}")
+
+
+@app.command()
+def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a free one)."),
+        max_clients: int = typer.Option(16, help="Most clients connected at once.")):
+    """Share one CAN bus between processes where vcan does not exist: a socketcand hub on 127.0.0.1.
+
+    Connect with --bus socketcand:127.0.0.1:PORT/can0 (python-can's socketcand interface).
+    """
+    from hil.hub import Hub, hub_bus_spec
+
+    with Hub(port=port, max_clients=max_clients) as running:
+        console.print(f"hub listening on 127.0.0.1:{running.port}; bus spec "
+                      f"[bold]{hub_bus_spec(running.port)}[/]; Ctrl-C stops it")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            console.print(f"hub stopped after {running.frames} frames ({running.dropped} dropped)")
 
 
 def main() -> None:  # pragma: no cover

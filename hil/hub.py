@@ -1,0 +1,409 @@
+"""A loopback CAN hub speaking the socketcand protocol, so separate processes share one bus without vcan.
+
+Where SocketCAN/vcan does not exist, the emulator (``hil.server``) and a master (``hil.client``, CANoe
+via socketcand, candump-like tools) in different processes meet on this hub: every client connects with
+python-can's own ``socketcand`` interface, unchanged::
+
+    hub = Hub().start()                                   # 127.0.0.1, free port
+    bus = can.Bus(interface="socketcand", host="127.0.0.1", port=hub.port, channel="can0")
+
+A frame one client sends reaches every other client in raw mode on the same channel name, never the
+sender (like a CAN controller without self-reception; python-can buses do not receive their own frames
+either). Different channel names are separate buses. Stand-alone: ``python -m hil.hub --port 29536``.
+
+Protocol (socketcand, https://github.com/linux-can/socketcand ``doc/protocol.md``; the subset python-can's
+``can.interfaces.socketcand`` client uses), ASCII, each element ``< ... >``:
+
+* hub → client on connect: ``< hi >``;
+* ``< open CHANNEL >`` → ``< ok >`` (BCM mode; the hub offers no broadcast-manager jobs);
+* ``< rawmode >`` → ``< ok >``; from then on each frame of another client arrives as
+  ``< frame ID SEC.USEC DATA >`` (ID 3 hex digits standard, 8 extended; SEC.USEC the hub's receive time
+  [s, Unix epoch]; DATA hex without spaces, empty for DLC 0);
+* ``< send ID LEN B0 B1 ... >`` (ID hex, 3 digits standard / 8 extended, LEN 0…8, bytes hex) in BCM or raw
+  mode sends a frame; ``< bcmode >`` leaves raw mode; ``< echo >`` → ``< echo >``;
+* anything else → ``< error TEXT >`` (the connection stays open; an over-long element closes it).
+
+Bounds: at most ``max_clients`` connections (more are told ``< error too many clients >`` and closed),
+at most ``max_buffer`` bytes queued towards one client (further frames to that client are dropped and
+counted in :attr:`Hub.dropped`, like a receive-queue overrun; a client that does not read the answers to
+its own commands is disconnected), elements of at most 256 characters.
+
+Binding is to 127.0.0.1 only: this project never puts CAN traffic on a network (docs: DESIGN.md,
+"CAN side facts").
+
+Standard library only (asyncio) besides python-can for :func:`open_hub_bus`.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+logger = logging.getLogger(__name__)
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_CHANNEL = "can0"
+_MAX_ELEMENT = 256                   # characters of one "< ... >" element
+_COMMANDS_BEFORE_OPEN = {"open", "echo"}
+
+
+def _check_host(host: str) -> str:
+    if host != LOOPBACK:
+        raise ValueError(f"the hub binds to {LOOPBACK} only (loopback; this project never puts CAN "
+                         f"traffic on a network), got host {host!r}")
+    return host
+
+
+def hub_bus_spec(port: int, channel: str = DEFAULT_CHANNEL, host: str = LOOPBACK) -> str:
+    """Bus spec of a hub connection in the grammar ``socketcand:HOST:PORT/CHANNEL``.
+
+    :func:`hil.bus.open_bus` opens it, so ``--bus`` options and :class:`hil.server.VehicleServer` /
+    :class:`hil.client.VehicleClient` take it as a string.
+
+    Args:
+        port: TCP port of the hub (:attr:`Hub.port`), 1…65535.
+        channel: socketcand channel name (one hub carries independent buses per name).
+        host: must be 127.0.0.1.
+    Raises:
+        ValueError: non-loopback host, port out of range, or a channel with whitespace, ``<``, ``>``,
+            ``@`` or ``/``.
+    """
+    _check_host(host)
+    _check_port(port, allow_zero=False)
+    _check_channel(channel)
+    return f"socketcand:{host}:{port}/{channel}"
+
+
+def open_hub_bus(port: int, channel: str = DEFAULT_CHANNEL, **kwargs):
+    """A python-can ``socketcand`` bus connected to the hub on 127.0.0.1:``port``.
+
+    Args:
+        port: TCP port of the hub (:attr:`Hub.port`).
+        channel: socketcand channel name.
+        kwargs: passed to ``can.Bus`` (e.g. ``tcp_tune=True`` sets TCP_NODELAY: lower latency).
+    Returns:
+        ``can.interfaces.socketcand.SocketCanDaemonBus``; close it with ``shutdown()``.
+    Raises:
+        ValueError: port out of range or a bad channel name.
+        TimeoutError: nothing listens on the port (python-can retries for 10 s).
+        can.CanError: the handshake failed.
+    """
+    import can
+
+    _check_port(port, allow_zero=False)
+    _check_channel(channel)
+    return can.Bus(interface="socketcand", host=LOOPBACK, port=port, channel=channel, **kwargs)
+
+
+def _check_port(port: int, allow_zero: bool) -> int:
+    if not isinstance(port, int) or isinstance(port, bool) or not (0 if allow_zero else 1) <= port <= 65535:
+        raise ValueError(f"port must be an integer in {'0' if allow_zero else '1'}…65535, got {port!r}")
+    return port
+
+
+def _check_channel(channel: str) -> str:
+    if not isinstance(channel, str) or not channel or any(c.isspace() or c in "<>@/" for c in channel):
+        raise ValueError(f"channel must be a non-empty name without whitespace, '<', '>', '@', '/', "
+                         f"got {channel!r}")
+    return channel
+
+
+@dataclass(eq=False)
+class _Client:
+    writer: asyncio.StreamWriter
+    peer: str
+    channel: str | None = None
+    raw: bool = False
+    pending: list[bytes] | None = None        # frames held back during the raw-mode grace period
+    pending_bytes: int = 0
+    release: asyncio.TimerHandle | None = None
+
+    def reply(self, text: bytes, limit: int) -> None:
+        """Answer a command; a client that lets ``limit`` bytes of answers pile up is disconnected."""
+        if self.writer.transport.get_write_buffer_size() > limit:
+            logger.warning("hub: %s does not read its answers, closing", self.peer)
+            self.writer.transport.abort()
+        else:
+            self.writer.write(text)
+
+
+class Hub:
+    """socketcand-protocol CAN hub on 127.0.0.1 (module docstring for the protocol).
+
+    Args:
+        port: TCP port, 0 = let the OS choose (read :attr:`port` after :meth:`start`).
+        host: must be 127.0.0.1.
+        max_clients: maximum simultaneous connections.
+        max_buffer: bytes, maximum output queued towards one client; beyond, frames to it are dropped.
+        handshake_grace: s, delay between the ``< ok >`` answering ``< rawmode >`` and the first frame
+            forwarded to that client (frames meanwhile are queued, not lost). python-can's client reads
+            the ``< ok >`` with one ``recv`` and compares it exactly, so a frame arriving in the same
+            ``recv`` would break its handshake.
+    Attributes:
+        frames: frames accepted from clients so far.
+        dropped: frames not delivered to some client because its queue was full.
+    Raises:
+        ValueError: non-loopback host, port out of range, ``max_clients`` < 1 or ``max_buffer`` < 256.
+    """
+
+    def __init__(self, port: int = 0, host: str = LOOPBACK, *, max_clients: int = 16,
+                 max_buffer: int = 1 << 20, handshake_grace: float = 0.05):
+        self._host = _check_host(host)
+        self._requested_port = _check_port(port, allow_zero=True)
+        if max_clients < 1 or max_buffer < _MAX_ELEMENT:
+            raise ValueError(f"max_clients must be >= 1 and max_buffer >= {_MAX_ELEMENT} bytes")
+        self.max_clients = int(max_clients)
+        self.max_buffer = int(max_buffer)
+        self.handshake_grace = float(handshake_grace)
+        self.frames = 0
+        self.dropped = 0
+        self._port: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: asyncio.base_events.Server | None = None
+        self._thread: threading.Thread | None = None
+        self._clients: set[_Client] = set()
+
+    # ------------------------------------------------------------ lifecycle
+    @property
+    def port(self) -> int:
+        """The TCP port the hub listens on. Raises RuntimeError when not started (or stopped)."""
+        if self._port is None:
+            raise RuntimeError("hub not started")
+        return self._port
+
+    @property
+    def host(self) -> str:
+        """Always 127.0.0.1."""
+        return self._host
+
+    @property
+    def clients(self) -> int:
+        """Number of connected clients."""
+        return len(self._clients)
+
+    def bus_spec(self, channel: str = DEFAULT_CHANNEL) -> str:
+        """:func:`hub_bus_spec` of this hub (see the note there)."""
+        return hub_bus_spec(self.port, channel)
+
+    def open_bus(self, channel: str = DEFAULT_CHANNEL, **kwargs):
+        """:func:`open_hub_bus` on this hub."""
+        return open_hub_bus(self.port, channel, **kwargs)
+
+    def start(self) -> "Hub":
+        """Bind 127.0.0.1:port and serve in a background thread; returns self.
+
+        Raises:
+            RuntimeError: already started.
+            OSError: the port cannot be bound (e.g. in use).
+        """
+        if self._thread is not None:
+            raise RuntimeError("hub already started")
+        loop = asyncio.new_event_loop()
+        try:
+            self._server = loop.run_until_complete(asyncio.start_server(
+                self._serve, self._host, self._requested_port, family=socket.AF_INET))
+        except BaseException:
+            loop.close()
+            raise
+        self._port = self._server.sockets[0].getsockname()[1]
+        self._loop = loop
+        self._thread = threading.Thread(target=loop.run_forever, name=f"hil-hub-{self._port}", daemon=True)
+        self._thread.start()
+        logger.info("CAN hub (socketcand protocol) on %s:%d", self._host, self._port)
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Close every connection and the listening socket, stop the thread; idempotent."""
+        loop, thread = self._loop, self._thread
+        if loop is None or thread is None:
+            return
+        try:
+            asyncio.run_coroutine_threadsafe(self._shutdown(), loop).result(timeout)
+        except Exception:                                  # noqa: BLE001
+            logger.exception("hub shutdown incomplete")
+        finally:
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join(timeout)
+            if not thread.is_alive():
+                loop.close()
+            self._loop = self._thread = self._server = None
+            self._port = None
+
+    def __enter__(self) -> "Hub":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    async def _shutdown(self) -> None:
+        self._server.close()
+        for client in list(self._clients):
+            client.writer.transport.abort()           # do not wait for a stalled client to read
+        handlers = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        if handlers:
+            await asyncio.wait(handlers, timeout=1.0)
+
+    # ------------------------------------------------------------ protocol
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        sock = writer.get_extra_info("socket")
+        quickack = getattr(socket, "TCP_QUICKACK", 0) if sock is not None else 0
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        peer = "%s:%s" % writer.get_extra_info("peername")[:2]
+        if len(self._clients) >= self.max_clients:
+            logger.warning("hub: refusing %s, already %d clients", peer, len(self._clients))
+            writer.write(b"< error too many clients >")
+            writer.close()
+            return
+        client = _Client(writer, peer)
+        self._clients.add(client)
+        logger.debug("hub: %s connected", peer)
+        try:
+            writer.write(b"< hi >")
+            buffer = b""
+            while True:
+                chunk = await reader.read(4096)
+                if not chunk:
+                    break
+                if quickack:
+                    # Acknowledge at once: python-can's client does not disable Nagle's algorithm, so
+                    # its next small frame would wait for our (delayed, ~40 ms) acknowledgement.
+                    sock.setsockopt(socket.IPPROTO_TCP, quickack, 1)
+                buffer += chunk
+                while True:
+                    end = buffer.find(b">")
+                    if end < 0:
+                        break
+                    element, buffer = buffer[:end + 1], buffer[end + 1:]
+                    self._handle(client, element)
+                if len(buffer) > _MAX_ELEMENT:
+                    writer.write(b"< error element too long >")
+                    logger.warning("hub: %s sent an element over %d characters, closing", peer, _MAX_ELEMENT)
+                    break
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            self._clients.discard(client)
+            writer.close()
+            logger.debug("hub: %s disconnected", peer)
+
+    def _handle(self, client: _Client, element: bytes) -> None:
+        def reply(text: bytes) -> None:
+            client.reply(text, self.max_buffer)
+
+        try:
+            text = element.decode("ascii")
+        except UnicodeDecodeError:
+            reply(b"< error not ascii >")
+            return
+        start = text.find("<")
+        if start < 0:
+            reply(b"< error missing '<' >")
+            return
+        words = text[start + 1:-1].split()
+        if not words:
+            reply(b"< error empty command >")
+            return
+        command, args = words[0], words[1:]
+        if client.channel is None and command not in _COMMANDS_BEFORE_OPEN:
+            reply(b"< error open a channel first >")
+            return
+        if command == "echo":
+            reply(b"< echo >")
+        elif command == "open":
+            if client.channel is not None:
+                reply(b"< error channel already open >")
+            elif len(args) != 1 or any(c in "@/" for c in args[0]):
+                reply(b"< error usage: open CHANNEL >")
+            else:
+                client.channel = args[0]
+                reply(b"< ok >")
+        elif command == "rawmode":
+            reply(b"< ok >")
+            if not client.raw:
+                client.raw = True
+                client.pending, client.pending_bytes = [], 0
+                client.release = self._loop.call_later(self.handshake_grace, self._release, client)
+        elif command == "bcmode":
+            client.raw = False
+            client.pending = None
+            if client.release is not None:
+                client.release.cancel()
+            reply(b"< ok >")
+        elif command == "send":
+            frame = _parse_send(args)
+            if isinstance(frame, str):
+                reply(f"< error {frame} >".encode("ascii"))
+            else:
+                self._broadcast(client, *frame)
+        else:
+            reply(f"< error unknown command {command[:32]} >".encode("ascii", "replace"))
+
+    def _release(self, client: _Client) -> None:
+        pending, client.pending = client.pending, None
+        if pending and client.raw and client in self._clients:
+            client.writer.write(b"".join(pending))
+
+    def _broadcast(self, sender: _Client, can_id: int, extended: bool, data: bytes) -> None:
+        self.frames += 1
+        now = time.time()
+        sec = int(now)
+        ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
+        line = f"< frame {ident} {sec}.{int((now - sec) * 1e6):06d} {data.hex().upper()} >".encode("ascii")
+        for client in self._clients:
+            if client is sender or not client.raw or client.channel != sender.channel:
+                continue
+            if client.pending is not None:
+                if client.pending_bytes + len(line) > self.max_buffer:
+                    self.dropped += 1
+                else:
+                    client.pending.append(line)
+                    client.pending_bytes += len(line)
+            elif client.writer.transport.get_write_buffer_size() + len(line) > self.max_buffer:
+                self.dropped += 1
+            else:
+                client.writer.write(line)
+
+
+def _parse_send(args: list[str]) -> tuple[int, bool, bytes] | str:
+    """``ID LEN B0 ...`` → (id, extended, data) or an error text."""
+    if len(args) < 2:
+        return "usage: send ID LEN DATA"
+    try:
+        can_id = int(args[0], 16)
+        length = int(args[1], 16)
+        data = bytes(int(b, 16) for b in args[2:])
+    except ValueError:
+        return "send: ID, LEN and data must be hexadecimal bytes"
+    extended = len(args[0]) > 3
+    if can_id > (0x1FFFFFFF if extended else 0x7FF):
+        return "send: ID out of range"
+    if not 0 <= length <= 8 or len(data) != length:
+        return "send: LEN must be 0..8 and equal the number of data bytes"
+    return can_id, extended, data
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m hil.hub [--port N]``: run a hub on 127.0.0.1 until interrupted (Ctrl-C)."""
+    parser = argparse.ArgumentParser(prog="python -m hil.hub", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--port", type=int, default=29536, help="TCP port on 127.0.0.1 (0: any free port)")
+    parser.add_argument("--max-clients", type=int, default=16)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    hub = Hub(args.port, max_clients=args.max_clients).start()
+    print(f"hub listening on {LOOPBACK}:{hub.port}; python-can: can.Bus(interface='socketcand', "
+          f"host='{LOOPBACK}', port={hub.port}, channel='{DEFAULT_CHANNEL}')", flush=True)
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        hub.stop()
+
+
+if __name__ == "__main__":
+    main()
