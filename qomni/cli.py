@@ -258,6 +258,39 @@ def compare(
     console.print(f"written {run_dir / 'comparison.json'}")
 
 
+@app.command("export-fmu")
+def export_fmu(
+    source: Path = typer.Argument(..., help="Run directory or identification.json."),
+    out: Path = typer.Option(..., "--out", help="FMU file to write (NAME.fmu)."),
+    fmi: int = typer.Option(2, "--fmi", help="FMI version: 2 or 3."),
+    kind: str = typer.Option("feedforward", help="Model: 'feedforward' (law (21)); the plant FMU is "
+                                                 "not available yet."),
+    vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
+):
+    """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
+    from fmu.export import FmuExportError, export_feedforward_fmu
+    from ident.identify import datasheet_from_metadata, load_identification
+
+    if kind != "feedforward":
+        _fail(f"--kind {kind!r} is not available yet; only 'feedforward' can be exported")
+    if fmi not in (2, 3):
+        _fail(f"--fmi must be 2 or 3, got {fmi}")
+    run_dir = source if source.is_dir() else source.parent
+    if vehicle is not None:
+        sheet = _datasheet(vehicle, None)
+    else:
+        meta = run_dir / "metadata.json"
+        if not meta.exists():
+            _fail(f"{meta} not found: pass --vehicle with the data sheet")
+        sheet = _guarded(lambda: datasheet_from_metadata(json.loads(meta.read_text()), str(meta)))
+    result = _guarded(lambda: load_identification(source))
+    try:
+        path = export_feedforward_fmu(result, sheet, out, fmi_version=fmi)
+    except (FmuExportError, ValueError) as exc:
+        _fail(str(exc))
+    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, feed-forward law (21))")
+
+
 @app.command()
 def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a free one)."),
         max_clients: int = typer.Option(16, help="Most clients connected at once.")):

@@ -1,0 +1,21 @@
+/* model.c -- the feed-forward FMU model: glue between the generic FMU core (fmu_instance.h) and the
+ * feed-forward law (feedforward.h). The storage indices FF_* come from the generated config.h. */
+#include <stdio.h>
+
+#include "feedforward.h"
+#include "fmu_instance.h"
+
+FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size) {
+    const double *x = v->float64;
+    double q_alpha[2] = {x[FF_Q + 3], x[FF_Q + 4]}; /* q = (x_ch, y_ch, gamma_ch, alpha_l, alpha_r, beta...) */
+    const char *error = NULL;
+    double u[4];
+    int k = (int)v->int32[FF_K];
+    if (qomni_feedforward(k, q_alpha, x[FF_ALPHA_V], v->boolean[FF_USE_ALPHA_V_INPUT], &x[FF_S_DOT],
+                          &x[FF_S_DDOT], &x[FF_P], &x[FF_GEOMETRY], x[FF_I_G], x[FF_EPS], u, &error) != 0) {
+        snprintf(message, size, "feed-forward (21) with k = %d: %s", k, error ? error : "failed");
+        return FMU_ERROR;
+    }
+    for (int j = 0; j < 4; j++) v->float64[FF_MOTOR_TORQUE + j] = u[j];
+    return FMU_OK;
+}

@@ -1,0 +1,432 @@
+/* fmu_instance.c -- generic core of the qomni Co-Simulation FMUs (see fmu_instance.h). */
+#include "fmu_instance.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const FmuVariable fmu_variables[N_VARIABLES] = FMU_VARIABLE_TABLE;
+static const double fmu_float64_start[FMU_ARRAY_SIZE(N_FLOAT64)] = FMU_FLOAT64_START;
+static const int32_t fmu_int32_start[FMU_ARRAY_SIZE(N_INT32)] = FMU_INT32_START;
+static const bool fmu_boolean_start[FMU_ARRAY_SIZE(N_BOOLEAN)] = FMU_BOOLEAN_START;
+
+static const char *const type_names[] = {"Float64", "Int32", "Boolean"};
+
+#define STATE_MAGIC 0x51464d55u /* "QFMU" */
+#define SERIAL_MAGIC "QOMNIFMU"
+#define SERIAL_VERSION 1u
+#define TOKEN_SIZE 64
+
+typedef struct {
+    uint32_t magic;
+    FmuValues values;
+} FmuState;
+
+typedef struct {
+    char magic[8];
+    uint32_t version;
+    uint32_t size;
+    char token[TOKEN_SIZE];
+} FmuSerialHeader;
+
+/* --- memory and logging --------------------------------------------------------------------------- */
+static void *fmu_allocate(FmuInstance *instance, size_t size) {
+    return instance->allocate ? instance->allocate(1, size) : calloc(1, size);
+}
+
+static void fmu_release(FmuInstance *instance, void *pointer) {
+    if (!pointer) return;
+    if (instance->release) instance->release(pointer);
+    else free(pointer);
+}
+
+static void deliver(FmuLogger logger, FmuCallback callback, void *environment, const char *name,
+                    FmuStatus status, const char *category, const char *text) {
+    if (logger && callback) logger(callback, environment, name ? name : "", status, category, text);
+}
+
+void fmu_log(FmuInstance *instance, FmuStatus status, const char *category, const char *format, ...) {
+    if (!instance) return;
+    if (status == FMU_OK && !instance->log_calls) return;
+    va_list args;
+    va_start(args, format);
+    vsnprintf(instance->message, sizeof instance->message, format, args);
+    va_end(args);
+    deliver(instance->logger, instance->callback, instance->environment, instance->name, status, category, instance->message);
+}
+
+static FmuStatus fmu_error(FmuInstance *instance, const char *format, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+
+static FmuStatus fmu_error(FmuInstance *instance, const char *format, ...) {
+    va_list args;
+    va_start(args, format);
+    vsnprintf(instance->message, sizeof instance->message, format, args);
+    va_end(args);
+    deliver(instance->logger, instance->callback, instance->environment, instance->name, FMU_ERROR, FMU_LOG_ERROR,
+            instance->message);
+    return FMU_ERROR;
+}
+
+static const char *mode_name(FmuMode mode) {
+    switch (mode) {
+    case FMU_MODE_INSTANTIATED: return "Instantiated";
+    case FMU_MODE_INITIALIZATION: return "Initialization Mode";
+    case FMU_MODE_STEP: return "Step Mode";
+    case FMU_MODE_TERMINATED: return "Terminated";
+    }
+    return "unknown";
+}
+
+FmuStatus fmu_require_mode(FmuInstance *instance, unsigned mask, const char *function) {
+    if (!instance) return FMU_ERROR;
+    if ((unsigned)instance->mode & mask) {
+        fmu_log(instance, FMU_OK, FMU_LOG_CALLS, "%s", function);
+        return FMU_OK;
+    }
+    return fmu_error(instance, "%s must not be called in state %s", function, mode_name(instance->mode));
+}
+
+FmuStatus fmu_unsupported(FmuInstance *instance, const char *function) {
+    if (!instance) return FMU_ERROR;
+    return fmu_error(instance, "%s is not supported by this FMU (Co-Simulation only, no event mode, "
+                               "no clocks, no derivatives)", function);
+}
+
+/* --- life cycle ------------------------------------------------------------------------------------- */
+static void set_start_values(FmuValues *v) {
+    memset(v, 0, sizeof *v);
+    memcpy(v->float64, fmu_float64_start, sizeof v->float64);
+    memcpy(v->int32, fmu_int32_start, sizeof v->int32);
+    memcpy(v->boolean, fmu_boolean_start, sizeof v->boolean);
+    v->time = 0.0;
+    v->dirty = true;
+}
+
+FmuInstance *fmu_instantiate(const char *name, const char *token, FmuLogger logger, FmuCallback callback,
+                             void *environment, bool log_calls, void *(*allocate)(size_t, size_t), void (*release)(void *)) {
+    const char *instance_name = name ? name : "";
+    if (!token || strcmp(token, INSTANTIATION_TOKEN) != 0) {
+        char text[FMU_MESSAGE_SIZE];
+        snprintf(text, sizeof text, "instantiation token / GUID '%s' does not match the FMU's '%s' "
+                 "(modelDescription.xml and binary of different exports?)",
+                 token ? token : "(null)", INSTANTIATION_TOKEN);
+        deliver(logger, callback, environment, instance_name, FMU_ERROR, FMU_LOG_ERROR, text);
+        return NULL;
+    }
+    FmuInstance *instance = allocate ? allocate(1, sizeof *instance) : calloc(1, sizeof *instance);
+    if (!instance) {
+        deliver(logger, callback, environment, instance_name, FMU_ERROR, FMU_LOG_ERROR, "out of memory");
+        return NULL;
+    }
+    memset(instance, 0, sizeof *instance);
+    instance->allocate = allocate;
+    instance->release = release;
+    instance->logger = logger;
+    instance->callback = callback;
+    instance->environment = environment;
+    instance->log_calls = log_calls;
+    instance->name = fmu_allocate(instance, strlen(instance_name) + 1);
+    if (!instance->name) {
+        deliver(logger, callback, environment, instance_name, FMU_ERROR, FMU_LOG_ERROR, "out of memory");
+        if (release) release(instance);
+        else free(instance);
+        return NULL;
+    }
+    strcpy(instance->name, instance_name);
+    instance->mode = FMU_MODE_INSTANTIATED;
+    set_start_values(&instance->values);
+    for (size_t i = 0; i < N_VARIABLES; i++) {
+        if (fmu_variables[i].vr != (uint32_t)i) { /* config.h invariant: value reference == row */
+            fmu_error(instance, "corrupt variable table: row %zu has value reference %u", i,
+                      (unsigned)fmu_variables[i].vr);
+            fmu_free_instance(instance);
+            return NULL;
+        }
+    }
+    fmu_log(instance, FMU_OK, FMU_LOG_CALLS, "instantiated %s (token %s)", MODEL_IDENTIFIER_STRING,
+            INSTANTIATION_TOKEN);
+    return instance;
+}
+
+void fmu_free_instance(FmuInstance *instance) {
+    if (!instance) return;
+    void (*release)(void *) = instance->release;
+    if (release) {
+        release(instance->name);
+        release(instance);
+    } else {
+        free(instance->name);
+        free(instance);
+    }
+}
+
+FmuStatus fmu_set_debug_logging(FmuInstance *instance, bool on, size_t n, const char *const categories[]) {
+    if (!instance) return FMU_ERROR;
+    if (n == 0) {
+        instance->log_calls = on;
+        return FMU_OK;
+    }
+    if (!categories) return fmu_error(instance, "SetDebugLogging: categories is NULL but nCategories = %zu", n);
+    for (size_t i = 0; i < n; i++) {
+        const char *c = categories[i];
+        if (!c) return fmu_error(instance, "log category %zu is NULL", i);
+        if (strcmp(c, FMU_LOG_CALLS) == 0) instance->log_calls = on;
+        else if (strcmp(c, FMU_LOG_ERROR) != 0 && strcmp(c, FMU_LOG_WARNING) != 0)
+            return fmu_error(instance, "unknown log category '%s' (known: %s, %s, %s)", c, FMU_LOG_ERROR,
+                             FMU_LOG_WARNING, FMU_LOG_CALLS);
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_enter_initialization(FmuInstance *instance, double start_time) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INSTANTIATED, "EnterInitializationMode");
+    if (s != FMU_OK) return s;
+    if (!isfinite(start_time)) return fmu_error(instance, "start time %g is not finite", start_time);
+    instance->values.time = start_time;
+    instance->mode = FMU_MODE_INITIALIZATION;
+    return FMU_OK;
+}
+
+FmuStatus fmu_exit_initialization(FmuInstance *instance) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION, "ExitInitializationMode");
+    if (s != FMU_OK) return s;
+    instance->mode = FMU_MODE_STEP;
+    return FMU_OK;
+}
+
+FmuStatus fmu_do_step(FmuInstance *instance, double t, double h) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_STEP, "DoStep");
+    if (s != FMU_OK) return s;
+    if (!(h > 0.0) || !isfinite(h))
+        return fmu_error(instance, "communicationStepSize must be > 0 and finite, got %.17g", h);
+    double now = instance->values.time;
+    if (!isfinite(t) || fabs(t - now) > 1e-9 * fmax(1.0, fabs(now)))
+        return fmu_error(instance, "currentCommunicationPoint %.17g differs from the FMU time %.17g", t, now);
+    instance->values.time = t + h; /* variable communication step size: any h > 0 */
+    return FMU_OK;
+}
+
+FmuStatus fmu_terminate(FmuInstance *instance) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_STEP, "Terminate");
+    if (s != FMU_OK) return s;
+    instance->mode = FMU_MODE_TERMINATED;
+    return FMU_OK;
+}
+
+FmuStatus fmu_reset(FmuInstance *instance) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "Reset");
+    if (s != FMU_OK) return s;
+    set_start_values(&instance->values);
+    instance->mode = FMU_MODE_INSTANTIATED;
+    return FMU_OK;
+}
+
+/* --- variable access ------------------------------------------------------------------------------- */
+static const FmuVariable *lookup(FmuInstance *instance, uint32_t vr, FmuType type) {
+    if (vr >= N_VARIABLES) {
+        fmu_error(instance, "unknown value reference %u", (unsigned)vr);
+        return NULL;
+    }
+    const FmuVariable *v = &fmu_variables[vr];
+    if (v->type != type) {
+        fmu_error(instance, "variable '%s' (value reference %u) is %s, not %s", v->name, (unsigned)vr,
+                  type_names[v->type], type_names[type]);
+        return NULL;
+    }
+    return v;
+}
+
+static FmuStatus calculate_if_needed(FmuInstance *instance, const FmuVariable *v) {
+    if (v->causality != FMU_OUTPUT || !instance->values.dirty) return FMU_OK;
+    char text[FMU_MESSAGE_SIZE] = "";
+    FmuStatus s = fmu_model_calculate(&instance->values, text, sizeof text);
+    if (s == FMU_OK) {
+        instance->values.dirty = false;
+        return FMU_OK;
+    }
+    return fmu_error(instance, "cannot calculate the outputs at t = %.17g: %s", instance->values.time, text);
+}
+
+static FmuStatus check_settable(FmuInstance *instance, const FmuVariable *v) {
+    if (instance->mode == FMU_MODE_TERMINATED)
+        return fmu_error(instance, "cannot set '%s' in state Terminated", v->name);
+    switch (v->causality) {
+    case FMU_INPUT:
+        return FMU_OK;
+    case FMU_PARAMETER:
+        if (v->tunable || instance->mode != FMU_MODE_STEP) return FMU_OK;
+        return fmu_error(instance, "parameter '%s' is fixed and cannot be set in Step Mode", v->name);
+    case FMU_OUTPUT:
+        return fmu_error(instance, "'%s' is an output and cannot be set", v->name);
+    case FMU_INDEPENDENT:
+        return fmu_error(instance, "'%s' is the independent variable and cannot be set", v->name);
+    }
+    return FMU_ERROR;
+}
+
+#define CHECK_ARGS(function)                                                                     \
+    if (!instance) return FMU_ERROR;                                                             \
+    if (n > 0 && (!vr || !value)) return fmu_error(instance, "%s: NULL array argument", function);
+
+FmuStatus fmu_get_float64(FmuInstance *instance, const uint32_t vr[], size_t n, double value[]) {
+    CHECK_ARGS("GetFloat64")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_FLOAT64);
+        if (!v) return FMU_ERROR;
+        if (v->causality == FMU_INDEPENDENT) {
+            value[i] = instance->values.time;
+            continue;
+        }
+        if (calculate_if_needed(instance, v) != FMU_OK) return FMU_ERROR;
+        value[i] = instance->values.float64[v->index];
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_get_int32(FmuInstance *instance, const uint32_t vr[], size_t n, int32_t value[]) {
+    CHECK_ARGS("GetInt32")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_INT32);
+        if (!v || calculate_if_needed(instance, v) != FMU_OK) return FMU_ERROR;
+        value[i] = instance->values.int32[v->index];
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_get_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, bool value[]) {
+    CHECK_ARGS("GetBoolean")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_BOOLEAN);
+        if (!v || calculate_if_needed(instance, v) != FMU_OK) return FMU_ERROR;
+        value[i] = instance->values.boolean[v->index];
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_float64(FmuInstance *instance, const uint32_t vr[], size_t n, const double value[]) {
+    CHECK_ARGS("SetFloat64")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_FLOAT64);
+        if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
+        instance->values.float64[v->index] = value[i];
+        instance->values.dirty = true;
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_int32(FmuInstance *instance, const uint32_t vr[], size_t n, const int32_t value[]) {
+    CHECK_ARGS("SetInt32")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_INT32);
+        if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
+        instance->values.int32[v->index] = value[i];
+        instance->values.dirty = true;
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, const bool value[]) {
+    CHECK_ARGS("SetBoolean")
+    for (size_t i = 0; i < n; i++) {
+        const FmuVariable *v = lookup(instance, vr[i], FMU_BOOLEAN);
+        if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
+        instance->values.boolean[v->index] = value[i];
+        instance->values.dirty = true;
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size_t n) {
+    if (!instance) return FMU_ERROR;
+    if (n == 0) return FMU_OK;
+    return fmu_error(instance, "this FMU has no variables of type %s", type);
+}
+
+/* --- FMU state ------------------------------------------------------------------------------------- */
+FmuStatus fmu_get_state(FmuInstance *instance, void **state) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "GetFMUState");
+    if (s != FMU_OK) return s;
+    if (!state) return fmu_error(instance, "GetFMUState: state pointer is NULL");
+    FmuState *st = *state;
+    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "GetFMUState: not a state of this FMU");
+    if (!st) {
+        st = fmu_allocate(instance, sizeof *st);
+        if (!st) return fmu_error(instance, "GetFMUState: out of memory");
+    }
+    st->magic = STATE_MAGIC;
+    st->values = instance->values;
+    *state = st;
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_state(FmuInstance *instance, const void *state) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "SetFMUState");
+    if (s != FMU_OK) return s;
+    const FmuState *st = state;
+    if (!st || st->magic != STATE_MAGIC) return fmu_error(instance, "SetFMUState: not a state of this FMU");
+    instance->values = st->values;
+    return FMU_OK;
+}
+
+FmuStatus fmu_free_state(FmuInstance *instance, void **state) {
+    if (!instance) return FMU_ERROR;
+    if (!state || !*state) return FMU_OK;
+    FmuState *st = *state;
+    if (st->magic != STATE_MAGIC) return fmu_error(instance, "FreeFMUState: not a state of this FMU");
+    st->magic = 0;
+    fmu_release(instance, st);
+    *state = NULL;
+    return FMU_OK;
+}
+
+size_t fmu_serialized_state_size(void) { return sizeof(FmuSerialHeader) + sizeof(FmuValues); }
+
+FmuStatus fmu_serialize_state(FmuInstance *instance, const void *state, uint8_t buffer[], size_t size) {
+    if (!instance) return FMU_ERROR;
+    const FmuState *st = state;
+    if (!st || st->magic != STATE_MAGIC) return fmu_error(instance, "SerializeFMUState: not a state of this FMU");
+    if (!buffer || size < fmu_serialized_state_size())
+        return fmu_error(instance, "SerializeFMUState: buffer of %zu bytes, need %zu", size,
+                         fmu_serialized_state_size());
+    FmuSerialHeader header;
+    memset(&header, 0, sizeof header);
+    memcpy(header.magic, SERIAL_MAGIC, sizeof header.magic);
+    header.version = SERIAL_VERSION;
+    header.size = (uint32_t)sizeof(FmuValues);
+    strncpy(header.token, INSTANTIATION_TOKEN, TOKEN_SIZE - 1);
+    memcpy(buffer, &header, sizeof header);
+    memcpy(buffer + sizeof header, &st->values, sizeof st->values);
+    return FMU_OK;
+}
+
+FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], size_t size, void **state) {
+    if (!instance) return FMU_ERROR;
+    if (!buffer || !state) return fmu_error(instance, "DeserializeFMUState: NULL argument");
+    if (size != fmu_serialized_state_size())
+        return fmu_error(instance, "DeserializeFMUState: %zu bytes, expected %zu", size,
+                         fmu_serialized_state_size());
+    FmuSerialHeader header;
+    memcpy(&header, buffer, sizeof header);
+    char token[TOKEN_SIZE] = "";
+    strncpy(token, INSTANTIATION_TOKEN, TOKEN_SIZE - 1);
+    if (memcmp(header.magic, SERIAL_MAGIC, sizeof header.magic) != 0 || header.version != SERIAL_VERSION ||
+        header.size != sizeof(FmuValues) || memcmp(header.token, token, TOKEN_SIZE) != 0)
+        return fmu_error(instance, "DeserializeFMUState: the bytes are not a state of this FMU "
+                                   "(other model, export or format version)");
+    FmuState *st = *state;
+    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "DeserializeFMUState: not a state of this FMU");
+    if (!st) {
+        st = fmu_allocate(instance, sizeof *st);
+        if (!st) return fmu_error(instance, "DeserializeFMUState: out of memory");
+    }
+    st->magic = STATE_MAGIC;
+    memcpy(&st->values, buffer + sizeof header, sizeof st->values);
+    *state = st;
+    return FMU_OK;
+}
