@@ -252,22 +252,9 @@ def _model_description_fmi2(variables, identifier, token, description, tool, ste
     _log_categories(root)
     ET.SubElement(root, "DefaultExperiment", startTime="0.0", stopTime="1.0", stepSize=repr(float(step_size)))
     mv = ET.SubElement(root, "ModelVariables")
-    for v in variables:
-        attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description,
-                 "causality": v.causality, "variability": v.variability}
-        if v.causality == "output":
-            attrs["initial"] = "calculated"
-        sv = ET.SubElement(mv, "ScalarVariable", attrs)
-        type_attrs = {}
-        if v.unit:
-            type_attrs["unit"] = v.unit
-        if v.min is not None:
-            type_attrs["min"] = str(v.min)
-        if v.max is not None:
-            type_attrs["max"] = str(v.max)
-        if v.start is not None:
-            type_attrs["start"] = _xml_value(v.start)
-        ET.SubElement(sv, _FMI2_TYPE[v.type], type_attrs)
+    for v in variables:  # FMI 2: value attributes on the type child element (FMI 2.0 §2.2.7)
+        sv = ET.SubElement(mv, "ScalarVariable", _variable_attrs(v))
+        ET.SubElement(sv, _FMI2_TYPE[v.type], _value_attrs(v))
     ms = ET.SubElement(root, "ModelStructure")
     outputs = ET.SubElement(ms, "Outputs")
     deps = " ".join(str(v.vr + 1) for v in _dependencies(variables))
@@ -295,20 +282,8 @@ def _model_description_fmi3(variables, identifier, token, description, tool, ste
     _log_categories(root)
     ET.SubElement(root, "DefaultExperiment", startTime="0.0", stopTime="1.0", stepSize=repr(float(step_size)))
     mv = ET.SubElement(root, "ModelVariables")
-    for v in variables:
-        attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description,
-                 "causality": v.causality, "variability": v.variability}
-        if v.causality == "output":
-            attrs["initial"] = "calculated"
-        if v.unit:
-            attrs["unit"] = v.unit
-        if v.min is not None:
-            attrs["min"] = str(v.min)
-        if v.max is not None:
-            attrs["max"] = str(v.max)
-        if v.start is not None:
-            attrs["start"] = _xml_value(v.start)
-        ET.SubElement(mv, v.type, attrs)
+    for v in variables:  # FMI 3: all attributes on the typed variable element (FMI 3.0 §2.4.7)
+        ET.SubElement(mv, v.type, {**_variable_attrs(v), **_value_attrs(v)})
     ms = ET.SubElement(root, "ModelStructure")
     deps = " ".join(str(v.vr) for v in _dependencies(variables))
     for v in variables:
@@ -318,6 +293,29 @@ def _model_description_fmi3(variables, identifier, token, description, tool, ste
         if v.causality == "output":
             ET.SubElement(ms, "InitialUnknown", valueReference=str(v.vr))
     return root
+
+
+def _variable_attrs(v) -> dict[str, str]:
+    """Attributes every FMI version puts on the variable element itself."""
+    attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description,
+             "causality": v.causality, "variability": v.variability}
+    if v.causality == "output":
+        attrs["initial"] = "calculated"
+    return attrs
+
+
+def _value_attrs(v) -> dict[str, str]:
+    """Unit, bounds and start value (FMI 2: on the type element; FMI 3: on the variable)."""
+    attrs = {}
+    if v.unit:
+        attrs["unit"] = v.unit
+    if v.min is not None:
+        attrs["min"] = str(v.min)
+    if v.max is not None:
+        attrs["max"] = str(v.max)
+    if v.start is not None:
+        attrs["start"] = _xml_value(v.start)
+    return attrs
 
 
 def _build_description_fmi3(identifier: str, source_files: list[str]) -> ET.Element:
