@@ -88,31 +88,36 @@ class StepController:
     def _warm_up(self) -> None:
         """Evaluate the command path once: the model compiles on first use (≈ 0.1–0.3 s), which must
         not happen between two SYNCs."""
-        a_ref, ad_ref, add_ref = self._alpha_reference(0.0)
-        self._feedforward(0.0, a_ref, ad_ref, add_ref, self._chassis_reference(0.0))
-        if self._chassis_reference(0.0) is not None:
-            self._chassis_input_row(a_ref)
+        a_ref, ad_ref, add_ref, chassis, av = self._references(0.0)
+        self._feedforward(a_ref, ad_ref, add_ref, chassis, av)
+        if chassis is not None:
+            self._chassis_column(a_ref)
         odometry.chassis_velocity(a_ref[None], ad_ref[None], np.zeros((1, 4)), self.sheet.geometry)
 
     # -- references -------------------------------------------------------------------------
-    def _alpha_reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _references(self, t: float):
+        """The step's references at t, from one evaluation of its trajectories: α, α̇, α̈ (2,) each,
+        the chassis coordinate (q, q̇, q̈) or None, and α_v's (q, q̇, q̈) or None."""
         ref = self.step.evaluate(np.array([t]))
-        if "alpha_v" in ref and "alpha_v" in self.step.trajectories:
+        av = None
+        if "alpha_v" in self.step.trajectories:
+            av = tuple(x[0] for x in ref["alpha_v"])
             h = 1e-4
-            av = np.array([ref["alpha_v"][0][0] + dv for dv in (-h, 0.0, h)])
-            a = kinematics.f_icr(av, self.sheet.geometry)  # (3, 2)
-            av_d, av_dd = ref["alpha_v"][1][0], ref["alpha_v"][2][0]
+            a = kinematics.f_icr(np.array([av[0] - h, av[0], av[0] + h]), self.sheet.geometry)
             da = (a[2] - a[0]) / (2 * h)
             dda = (a[2] - 2 * a[1] + a[0]) / h**2
-            return a[1], da * av_d, dda * av_d**2 + da * av_dd
-        return tuple(np.array([ref[c][i][0] for c in ("alpha_l", "alpha_r")]) for i in range(3))
-
-    def _chassis_reference(self, t: float):
+            alpha = (a[1], da * av[1], dda * av[1] ** 2 + da * av[2])
+        else:
+            alpha = tuple(np.array([ref[c][i][0] for c in ("alpha_l", "alpha_r")]) for i in range(3))
         name = CHASSIS_COORDINATE.get(self.k)
-        if name is None or name not in self.step.trajectories:
-            return None
-        q, qd, qdd = self.step.evaluate(np.array([t]))[name]
-        return q[0], qd[0], qdd[0]
+        chassis = None
+        if name is not None and name in self.step.trajectories:
+            chassis = tuple(x[0] for x in ref[name])
+        return (*alpha, chassis, av)
+
+    def _chassis_rate(self, velocity: np.ndarray) -> float:
+        """The step's chassis coordinate rate from the chassis-frame velocities (3,)."""
+        return {2: velocity[0], 3: velocity[1], 4: velocity[2]}.get(self.k, 0.0)
 
     # -- one cycle ----------------------------------------------------------------------------
     def estimate(self, measurement) -> ControllerState:
@@ -123,18 +128,16 @@ class StepController:
         beta_dot = np.asarray(measurement.motor_velocity, dtype=float) / d.i_G
         velocity = odometry.chassis_velocity(alpha[None], alpha_dot[None], beta_dot[None], g)[0]
         if self.state is not None:
-            rate = {2: velocity[0], 3: velocity[1], 4: velocity[2]}.get(self.k, 0.0)
-            self._s_chassis += rate * d.cycle_time
+            self._s_chassis += self._chassis_rate(velocity) * d.cycle_time
         self.state = ControllerState(alpha, alpha_dot, beta_dot, velocity, self._s_chassis)
         return self.state
 
     def command(self, t: float, measurement) -> np.ndarray:
         """Motor torques (4,) [N m, motor side] for the cycle after ``measurement``, at step time t."""
         st = self.estimate(measurement)
-        g, d = self.sheet.geometry, self.sheet.drive
-        a_ref, ad_ref, add_ref = self._alpha_reference(t)
-        chassis = self._chassis_reference(t)
-        u_ff = self._feedforward(t, a_ref, ad_ref, add_ref, chassis)
+        d = self.sheet.drive
+        a_ref, ad_ref, add_ref, chassis, av = self._references(t)
+        u_ff = self._feedforward(a_ref, ad_ref, add_ref, chassis, av)
         sg, cg = self._steer_gains, self._chassis_gains
         error = a_ref - st.alpha
         integrate = np.where(np.abs(error) > self._integral_deadband, error, 0.0)
@@ -144,35 +147,29 @@ class StepController:
                                          + sg.ki * self._steer_integral)
         rows, forces = [self._hold_rows], [q_steer]
         if chassis is not None:
-            column = self._chassis_input_row(st.alpha)  # (1, 4)
-            inertia = self._chassis_inertia(st.alpha)
-            rate = {2: st.velocity[0], 3: st.velocity[1], 4: st.velocity[2]}[self.k]
-            q_ch = inertia * (cg.kp * (chassis[0] - st.s_chassis) + cg.kd * (chassis[1] - rate))
-            rows.append(column)
+            h = self._chassis_column(st.alpha)
+            rate = self._chassis_rate(st.velocity)
+            q_ch = self._chassis_inertia(h) * (cg.kp * (chassis[0] - st.s_chassis)
+                                               + cg.kd * (chassis[1] - rate))
+            rows.append((d.i_G * h[5:9])[None])  # H_kᵀB of the chassis column, (1, 4)
             forces.append([q_ch])
         u_fb = np.linalg.pinv(np.vstack(rows)) @ np.concatenate(forces)
         return np.clip(u_ff + u_fb, -self._u_max, self._u_max)
 
-    def _feedforward(self, t, a_ref, ad_ref, add_ref, chassis) -> np.ndarray:
-        g = self.sheet.geometry
+    def _feedforward(self, a_ref, ad_ref, add_ref, chassis, av) -> np.ndarray:
         k = self.k
         q = np.zeros(9)
         q[3:5] = a_ref
         if k == 1:
             sd, sdd = ad_ref, add_ref
         elif k == 2:
-            ref = self.step.evaluate(np.array([t]))
-            if "alpha_v" in self.step.trajectories:
-                av = ref["alpha_v"]
-                sd = np.array([av[1][0], chassis[1]])
-                sdd = np.array([av[2][0], chassis[2]])
-            else:
-                sd = np.array([0.0, chassis[1]])
-                sdd = np.array([0.0, chassis[2]])
+            av_d, av_dd = (av[1], av[2]) if av is not None else (0.0, 0.0)
+            sd = np.array([av_d, chassis[1]])
+            sdd = np.array([av_dd, chassis[2]])
         else:
             sd, sdd = np.array([chassis[1]]), np.array([chassis[2]])
-        u = dynamics.feedforward(k, q[None], sd[None], sdd[None], self.p_nominal, g,
-                                 self.sheet.drive.i_G)
+        u = dynamics.feedforward(k, q[None], sd[None], sdd[None], self.p_nominal,
+                                 self.sheet.geometry, self.sheet.drive.i_G)
         return np.asarray(u)[0]
 
     def _alpha_v(self, alpha: np.ndarray) -> float:
@@ -189,12 +186,9 @@ class StepController:
             return kinematics.H(2, alpha_icr, g)[0][:, 1]
         return kinematics.H(self.k, kinematics.mode_alpha(self.k, g)[None], g)[0][:, 0]
 
-    def _chassis_input_row(self, alpha: np.ndarray) -> np.ndarray:
-        return (self.sheet.drive.i_G * self._chassis_column(alpha)[5:9])[None]
-
-    def _chassis_inertia(self, alpha: np.ndarray) -> float:
-        n, g = self.sheet.nominal, self.sheet.geometry
-        h = self._chassis_column(alpha)
+    def _chassis_inertia(self, h: np.ndarray) -> float:
+        """Nominal generalized inertia h ᵀ M h of the chassis column h (9,) of H_k."""
+        n = self.sheet.nominal
         return float(n.m_ch * (h[0] ** 2 + h[1] ** 2) + (n.C_ch + n.C_l + n.C_r) * h[2] ** 2
                      + n.B_w * np.sum(h[5:9] ** 2))
 
