@@ -15,17 +15,56 @@ lumped model sees exactly them at α = 0:
 
 Away from α = 0 the wheel offset makes the real yaw inertia configuration dependent (≈0.5 % in mode 4 for
 the prototype) — an effect the paper's model neglects.
+
+Where the masses come from: ``[body]`` of the description, or a ``BuildPlan`` (emulator/effects) that the
+active effects edited — the ideal vehicle's negligible steering-unit masses, heavy steering units, the
+physical wheel radius, a payload fixed to the chassis, a motor rotor behind a gear with backlash.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from xml.sax.saxutils import quoteattr
 
 from .description import DescriptionError, VehicleDescription
 
 WHEELS = ("fl", "rl", "fr", "rr")
 SIDE_SIGN = {"fl": 1.0, "rl": 1.0, "fr": -1.0, "rr": -1.0}
+
+
+@dataclass(frozen=True)
+class FixedLink:
+    """A rigid body fixed to the chassis (mass at ``origin`` in the chassis frame, box inertia)."""
+
+    name: str
+    mass: float
+    origin: tuple[float, float, float]
+    size: tuple[float, float, float]  # box edges x, y, z in m (visual and inertia)
+
+    def inertia(self) -> tuple[float, float, float]:
+        x, y, z = self.size
+        m = self.mass / 12
+        return m * (y * y + z * z), m * (x * x + z * z), m * (x * x + y * y)
+
+
+@dataclass
+class BuildPlan:
+    """What the emulator builds the rigid bodies from; effects edit it in ``configure``.
+
+    Attributes:
+        steering_unit_mass: kg per steering fork, centre on the steering axis.
+        wheel_mass: kg per wheel (rotor included), centre at the wheel centre.
+        wheel_radius: m, the physical rolling radius (collision sphere and ride height).
+        rotor_fraction: share of B_w on a separate motor+gear rotor link behind the gear (0: none, the
+            gear is rigid and B_w sits on the wheel).
+        fixed_links: extra bodies fixed to the chassis.
+    """
+
+    steering_unit_mass: float
+    wheel_mass: float
+    wheel_radius: float
+    rotor_fraction: float = 0.0
+    fixed_links: list[FixedLink] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -48,14 +87,27 @@ def corner(description: VehicleDescription, wheel: str) -> tuple[float, float]:
     return x, y
 
 
-def body_inertias(description: VehicleDescription) -> BodyInertias:
-    """Distribute the truth over the bodies as the module docstring says.
+def prototype_plan(description: VehicleDescription) -> BuildPlan:
+    """The bodies as ``[body]`` describes them (steering-unit and wheel masses), nominal wheel radius."""
+    bd = description.body
+    return BuildPlan(steering_unit_mass=bd.steering_unit_mass, wheel_mass=bd.wheel_mass,
+                     wheel_radius=description.geometry.r)
+
+
+def body_inertias(description: VehicleDescription, plan: BuildPlan | None = None) -> BodyInertias:
+    """Distribute the truth over the bodies as the module docstring says (masses from ``plan``,
+    default ``prototype_plan``; extra fixed links are on top of the truth and not included here).
 
     Raises:
         DescriptionError: if the body masses leave a negative chassis or fork inertia.
     """
     g, t, bd = description.geometry, description.truth, description.body
-    m_f, m_w, i_wt = bd.steering_unit_mass, bd.wheel_mass, bd.wheel_transverse_inertia
+    plan = plan or prototype_plan(description)
+    m_f, m_w, i_wt = plan.steering_unit_mass, plan.wheel_mass, bd.wheel_transverse_inertia
+    if 4 * (m_f + m_w) >= t.m_ch:
+        raise DescriptionError(
+            f"{description.source}: 4·(steering_unit_mass + wheel_mass) = {4 * (m_f + m_w)} kg "
+            f"must be below truth.m_ch = {t.m_ch} kg")
     fork_izz = {}
     for w in WHEELS:
         c_side = t.C_l if w[1] == "l" else t.C_r
@@ -89,14 +141,17 @@ def _inertial(mass: float, ixx: float, iyy: float, izz: float) -> str:
             f'</inertial>')
 
 
-def vehicle_urdf(description: VehicleDescription) -> str:
-    """The vehicle as a URDF document (string). Joint names: ``steer_<w>``, ``wheel_<w>``.
+def vehicle_urdf(description: VehicleDescription, plan: BuildPlan | None = None) -> str:
+    """The vehicle as a URDF document (string). Joint names: ``steer_<w>``, ``wheel_<w>``; with a
+    separate motor rotor (``plan.rotor_fraction > 0``) also ``motor_<w>``; fixed links by their names.
 
     Joint friction is not in the URDF: the emulator sets viscous damping and Coulomb friction (as a
     velocity motor with target 0) itself, so both equal the truth exactly.
     """
     g, bd = description.geometry, description.body
-    inert = body_inertias(description)
+    plan = plan or prototype_plan(description)
+    inert = body_inertias(description, plan)
+    radius, f = plan.wheel_radius, plan.rotor_fraction
     length, width, height = g.l + 0.2, g.b, bd.chassis_height
     parts = [f'<robot name={quoteattr(description.name)}>',
              '<material name="body"><color rgba="0.25 0.45 0.7 1"/></material>',
@@ -108,6 +163,15 @@ def vehicle_urdf(description: VehicleDescription) -> str:
              f'<box size="{length:.6g} {width:.6g} {height:.6g}"/></geometry>'
              '<material name="body"/></visual>',
              '</link>']
+    for link in plan.fixed_links:
+        parts += [
+            f'<joint name="{link.name}_joint" type="fixed"><parent link="chassis"/>'
+            f'<child link="{link.name}"/><origin xyz="{" ".join(f"{v:.10g}" for v in link.origin)}"/>'
+            '</joint>',
+            f'<link name="{link.name}">', _inertial(link.mass, *link.inertia()),
+            f'<visual><geometry><box size="{" ".join(f"{v:.6g}" for v in link.size)}"/></geometry>'
+            '<material name="fork"/></visual></link>']
+    wheel_inertia = tuple(i * (1 - f) for i in inert.wheel_inertia)
     for w in WHEELS:
         px, py = corner(description, w)
         side = SIDE_SIGN[w]
@@ -126,11 +190,20 @@ def vehicle_urdf(description: VehicleDescription) -> str:
             f'<child link="wheel_{w}"/><origin xyz="0 {side * g.a:.10g} 0"/><axis xyz="0 1 0"/>'
             '</joint>',
             f'<link name="wheel_{w}">',
-            _inertial(inert.wheel_mass, *inert.wheel_inertia),
+            _inertial(inert.wheel_mass * (1 - f), *wheel_inertia),
             f'<visual><origin rpy="{math.pi / 2:.10g} 0 0"/><geometry>'
-            f'<cylinder radius="{g.r:.10g}" length="0.06"/></geometry><material name="tire"/></visual>',
-            f'<collision><geometry><sphere radius="{g.r:.10g}"/></geometry></collision>',
+            f'<cylinder radius="{radius:.10g}" length="0.06"/></geometry><material name="tire"/></visual>',
+            f'<collision><geometry><sphere radius="{radius:.10g}"/></geometry></collision>',
             '</link>',
         ]
+        if f > 0:  # motor + gear rotor, reflected to the wheel side, coupled to the wheel by effects
+            parts += [
+                f'<joint name="motor_{w}" type="continuous"><parent link="fork_{w}"/>'
+                f'<child link="rotor_{w}"/><origin xyz="0 {side * g.a:.10g} 0"/><axis xyz="0 1 0"/>'
+                '</joint>',
+                f'<link name="rotor_{w}">',
+                _inertial(inert.wheel_mass * f, *(i * f for i in inert.wheel_inertia)),
+                '</link>',
+            ]
     parts.append('</robot>')
     return "\n".join(parts)

@@ -1,8 +1,12 @@
 """The emulated vehicle: PyBullet physics of the prototype behind its drives' and sensors' interface.
 
 What a drive can do to it (apply a motor torque) and what its sensors report (``SensorReading``) are the
-whole interface the HIL layer uses. ``true_state`` exists for tests and the truth comparison only; it is
-never put on the bus.
+whole interface the HIL layer uses. ``true_state`` and ``effects`` exist for tests and the truth
+comparison only; they are never put on the bus.
+
+The vehicle is the ideal vehicle (the paper's assumptions hold) plus the unmodelled effects of an
+``EffectSet`` (emulator/effects, docs/effects.md); the default is the prototype, whose only effect is its
+heavy steering units.
 """
 from __future__ import annotations
 
@@ -17,6 +21,8 @@ import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
 from .description import VehicleDescription
+from .effects import EffectSet, Plant
+from .effects.base import ideal_plan
 from .sensors import SensorReading
 from .urdf import WHEELS, vehicle_urdf
 
@@ -62,16 +68,24 @@ class Emulator:
         gui: open PyBullet's GUI window instead of DIRECT mode (needs a display).
         time_step: physics step in s, at most 1 ms; the drives' cycle time must be a multiple of it.
         initial_alpha: (α_l, α_r) in rad the vehicle was parked with (wheels aligned for a mode).
+        effects: the unmodelled effects on top of the ideal vehicle (``EffectSet.ideal()``: none);
+            ``None`` is the prototype (``EffectSet.prototype``: heavy steering units with the
+            description's ``[body]`` masses).
+
+    Attributes:
+        effects: the active ``EffectSet`` (tests and truth comparison only, never on the bus).
 
     Raises:
-        ValueError: bad time step.
+        ValueError: bad time step; ``EffectsError`` (a ValueError) for an effect that does not fit.
     """
 
     def __init__(self, description: VehicleDescription | None = None, *, seed: int = 0,
                  lifted: bool = False, gui: bool = False, time_step: float = 0.001,
-                 initial_alpha: tuple[float, float] = (0.0, 0.0)):
+                 initial_alpha: tuple[float, float] = (0.0, 0.0), effects: EffectSet | None = None):
         self.description = description or VehicleDescription.load()
         d = self.description
+        self.effects = effects if effects is not None else EffectSet.prototype(d)
+        self._effects = [e.fresh() for e in self.effects]  # run-time state is per vehicle
         if not 0 < time_step <= 0.001 + 1e-12:
             raise ValueError(f"time_step must be in (0, 1 ms], got {time_step}")
         cycle_steps = d.drive.cycle_time / time_step
@@ -109,15 +123,20 @@ class Emulator:
         pb.setGravity(0, 0, -GRAVITY)
         plane = pb.createMultiBody(0, pb.createCollisionShape(pybullet.GEOM_PLANE))
         pb.changeDynamics(plane, -1, lateralFriction=1.0, spinningFriction=0, rollingFriction=0)
+        plan = ideal_plan(d)
+        for effect in self._effects:
+            effect.configure(plan, d)
+        self.plan = plan
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "vehicle.urdf"
-            path.write_text(vehicle_urdf(d))
-            height = g.r + (LIFT_HEIGHT if self.lifted else 0.0)
+            path.write_text(vehicle_urdf(d, plan))
+            height = plan.wheel_radius + (LIFT_HEIGHT if self.lifted else 0.0)
             self.body = pb.loadURDF(str(path), [0, 0, height], useFixedBase=self.lifted,
                                     flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
         names = {pb.getJointInfo(self.body, j)[1].decode(): j for j in range(pb.getNumJoints(self.body))}
         self._steer = [names[f"steer_{w}"] for w in WHEELS]
         self._wheel = [names[f"wheel_{w}"] for w in WHEELS]
+        rotor = [names[f"motor_{w}"] for w in WHEELS] if plan.rotor_fraction > 0 else []
         pb.changeDynamics(self.body, -1, linearDamping=0, angularDamping=0)
         for j in range(pb.getNumJoints(self.body)):
             pb.changeDynamics(self.body, j, linearDamping=0, angularDamping=0)
@@ -136,12 +155,18 @@ class Emulator:
             pb.changeConstraint(c, gearRatio=1, maxForce=1e5, erp=0.2)
             self._couplings.append(c)
         joints = self._steer + self._wheel
-        pb.setJointMotorControlArray(self.body, joints, pybullet.VELOCITY_CONTROL,
-                                     forces=[0.0] * len(joints))
+        pb.setJointMotorControlArray(self.body, joints + rotor, pybullet.VELOCITY_CONTROL,
+                                     forces=[0.0] * len(joints + rotor))
         # Coulomb friction with true stiction: a velocity motor holding 0 up to d_c.
         coulomb = [(t.d_cl if w[1] == "l" else t.d_cr) / 2 for w in WHEELS] + [t.d_cw] * 4
         pb.setJointMotorControlArray(self.body, joints, pybullet.VELOCITY_CONTROL,
                                      targetVelocities=[0.0] * len(joints), forces=coulomb)
+        self._plant = Plant(pb, self.body, plane, self.time_step, d, plan, self._steer, self._wheel,
+                            rotor, self._couplings, np.array(coulomb))
+        for effect in self._effects:
+            effect.attach(self._plant)
+        self._shapers = [e for e in self._effects if e.shapes_torque()]
+        self._steppers = [e for e in self._effects if e.steps()]
 
     # -- drive interface ---------------------------------------------------------------------
     @property
@@ -174,15 +199,32 @@ class Emulator:
     def _physics_step(self) -> None:
         # Torque ripple: zero-mean, fresh every physics step, only while the drive produces torque.
         ripple = self._rng.normal(0.0, self.description.noise.motor_torque_ripple, 4)
-        self._applied = self._commanded + ripple * (self._commanded != 0)
-        wheel_torque = self.description.drive.i_G * self._applied
-        self._pb.setJointMotorControlArray(self.body, self._wheel, pybullet.TORQUE_CONTROL,
+        applied = self._commanded + ripple * (self._commanded != 0)
+        for effect in self._shapers:
+            applied = effect.drive_torque(applied)
+        self._applied = applied
+        wheel_torque = self.description.drive.i_G * applied
+        plant = self._plant
+        if self._steppers:
+            plant.torque[:] = 0.0
+            plant.torque[:4] = wheel_torque
+            if plant.friction_dynamic:
+                plant.coulomb[:] = plant.coulomb_base
+            for effect in self._steppers:
+                effect.before_step(plant)
+            if plant.friction_dynamic:
+                self._pb.setJointMotorControlArray(
+                    self.body, plant.coulomb_joints, pybullet.VELOCITY_CONTROL,
+                    targetVelocities=[0.0] * len(plant.coulomb_joints), forces=plant.coulomb.tolist())
+            wheel_torque = plant.torque
+        self._pb.setJointMotorControlArray(self.body, plant.torque_joints, pybullet.TORQUE_CONTROL,
                                            forces=wheel_torque.tolist())
         self._pb.stepSimulation()
         self._steps += 1
 
     def _wheel_angles(self) -> np.ndarray:
-        return np.array([s[0] for s in self._pb.getJointStates(self.body, self._wheel)])
+        """Angles the motor encoders see, wheel side (the wheels, or the motor rotors behind a gear)."""
+        return np.array([s[0] for s in self._pb.getJointStates(self.body, self._plant.encoder_joints)])
 
     def _encoder_positions(self) -> np.ndarray:
         drive = self.description.drive

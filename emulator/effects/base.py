@@ -1,0 +1,155 @@
+"""The contract every unmodelled effect implements, and what it may touch.
+
+An effect is physics the paper's model leaves out. It acts on the emulated vehicle only through the hooks
+below, which the :class:`~emulator.vehicle.Emulator` calls in this order:
+
+1. ``configure(plan)`` before the URDF is generated: change the rigid bodies (masses, wheel radius, an
+   extra payload link, a separate motor rotor behind a gear);
+2. ``attach(plant)`` once the body is loaded, before the vehicle settles: gravity, contact parameters,
+   constraints, and which joints the effect puts torque on;
+3. every physics step, ``drive_torque(applied)`` maps the torque the drive reports (motor side) to the
+   torque its motor really applies, then ``before_step(plant)`` sets joint friction limits, joint torques
+   and external forces from the current physical state.
+
+Nothing here touches the sensors: an effect shows on the bus only through the motion it causes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..urdf import WHEELS, BuildPlan, FixedLink  # noqa: F401  (re-exported for effects)
+
+
+class EffectsError(ValueError):
+    """An effects file names an unknown effect or parameter, lacks one, or has a wrong type or value."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of an effect: its unit, allowed range and default (``None``: required).
+
+    ``kind`` is ``"number"``, ``"vector2"`` (two numbers, each within [low, high]) or ``"choice"``
+    (one of ``choices``). ``low``/``high`` bound the physically allowed values, not only the realistic
+    range the docs give.
+    """
+
+    unit: str
+    low: float = -math.inf
+    high: float = math.inf
+    default: Any = None
+    kind: str = "number"
+    choices: tuple[str, ...] = ()
+    doc: str = ""
+
+
+# The ideal vehicle's steering units and wheels: negligible masses, so the paper's assumption
+# a ≪ √(l² + b²)/2 (constant yaw inertia, no α–γ coupling) holds; the lumped inertias stay the truth.
+IDEAL_STEERING_UNIT_MASS = 0.2  # kg
+IDEAL_WHEEL_MASS = 0.3  # kg
+
+
+def ideal_plan(description) -> BuildPlan:
+    """The ideal vehicle's bodies: negligible steering-unit and wheel masses, nominal wheel radius."""
+    return BuildPlan(steering_unit_mass=IDEAL_STEERING_UNIT_MASS, wheel_mass=IDEAL_WHEEL_MASS,
+                     wheel_radius=description.geometry.r)
+
+
+class Plant:
+    """The loaded vehicle as effects see it (built by the emulator; effects read and set, never sense).
+
+    Attributes:
+        pb: the PyBullet client; body, plane: body ids.
+        time_step: s.
+        description: the vehicle description; plan: the build plan it was built with.
+        steer, wheel: joint indices in wheel order fl, rl, fr, rr.
+        drive_joints: where the motor torque acts (the wheels, or the motor rotors behind a gear).
+        encoder_joints: what the motor encoders read (the same joints as ``drive_joints``).
+        couplings: the two front/rear mirror constraints (left, right).
+        coulomb_joints: ``steer + wheel``; coulomb_base: their Coulomb friction limits (N m);
+        coulomb: this step's limits — effects add to it in ``before_step`` when they said
+            ``dynamic_friction()`` in ``attach``.
+        torque_joints: joints that get a torque each step; torque: this step's torques (N m), effects add
+            to it at ``torque_slots(...)``.
+    """
+
+    def __init__(self, pb, body: int, plane: int, time_step: float, description, plan: BuildPlan,
+                 steer: list[int], wheel: list[int], rotor: list[int] | None, couplings: list[int],
+                 coulomb_base: np.ndarray):
+        self.pb, self.body, self.plane = pb, body, plane
+        self.time_step = time_step
+        self.description, self.plan = description, plan
+        self.steer, self.wheel, self.rotor = steer, wheel, rotor
+        self.drive_joints = rotor if rotor else wheel
+        self.encoder_joints = self.drive_joints
+        self.couplings = couplings
+        self.coulomb_joints = steer + wheel
+        self.coulomb_base = coulomb_base
+        self.coulomb = coulomb_base.copy()
+        self.friction_dynamic = False
+        self.torque_joints = list(self.drive_joints)
+        self.torque = np.zeros(len(self.torque_joints))
+
+    def dynamic_friction(self) -> None:
+        """The Coulomb limits change every step (resent after ``before_step``)."""
+        self.friction_dynamic = True
+
+    def torque_slots(self, joints: list[int]) -> np.ndarray:
+        """Indices into ``torque`` for ``joints``, adding them to ``torque_joints`` where new."""
+        for j in joints:
+            if j not in self.torque_joints:
+                self.torque_joints.append(j)
+        self.torque = np.zeros(len(self.torque_joints))
+        return np.array([self.torque_joints.index(j) for j in joints])
+
+    def joint_states(self, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) of ``joints`` now."""
+        states = self.pb.getJointStates(self.body, joints)
+        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+
+
+class Effect:
+    """One unmodelled effect; subclasses set ``name``, ``params`` and override the hooks they need.
+
+    Instances hold their parameter values (``self.values``) and, once attached, their run-time state;
+    the emulator builds a fresh instance per vehicle (``fresh``).
+    """
+
+    name: ClassVar[str] = ""
+    params: ClassVar[dict[str, Param]] = {}
+    summary: ClassVar[str] = ""
+
+    def __init__(self, **values):
+        self.values = {key: values.get(key, spec.default) for key, spec in self.params.items()}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.values})"
+
+    def fresh(self) -> "Effect":
+        return type(self)(**self.values)
+
+    # -- hooks -------------------------------------------------------------------------------
+    def configure(self, plan: BuildPlan, description) -> None:
+        """Change the rigid bodies before the URDF is generated."""
+
+    def attach(self, plant: Plant) -> None:
+        """Set up on the loaded body (before settling)."""
+
+    def drive_torque(self, applied: np.ndarray) -> np.ndarray:
+        """Motor-side torque the motors apply this step, from what the drives apply and report."""
+        return applied
+
+    def before_step(self, plant: Plant) -> None:
+        """Set friction limits, joint torques and external forces for the coming physics step."""
+
+    # Which hooks an effect uses: the emulator calls only those every step.
+    @classmethod
+    def steps(cls) -> bool:
+        return cls.before_step is not Effect.before_step
+
+    @classmethod
+    def shapes_torque(cls) -> bool:
+        return cls.drive_torque is not Effect.drive_torque

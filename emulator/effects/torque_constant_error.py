@@ -1,0 +1,27 @@
+"""Torque-constant error of one drive: its motor applies ``factor`` × the torque the drive reports.
+
+The drive computes torque actual (0x6077) from its current with a nominal torque constant; the real
+constant differs (magnet temperature, tolerance), so the applied torque is scaled and the report is not."""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import WHEELS, Effect, Param
+
+
+class TorqueConstantError(Effect):
+    name = "torque_constant_error"
+    summary = "one drive applies factor × its reported torque"
+    params = {
+        "drive": Param("-", kind="choice", choices=WHEELS, doc="the drive: fl, rl, fr or rr"),
+        "factor": Param("-", 0.5, 1.5, doc="applied / reported torque"),
+    }
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        self._scale = np.ones(4)
+        if self.values["drive"] in WHEELS:
+            self._scale[WHEELS.index(self.values["drive"])] = self.values["factor"]
+
+    def drive_torque(self, applied: np.ndarray) -> np.ndarray:
+        return applied * self._scale
