@@ -1,13 +1,31 @@
-"""CiA 402 wheel drive node: power state machine and cyclic synchronous torque mode (CST, 0x6060 = 10).
+"""CiA 402 wheel drive node: power state machine, cyclic synchronous torque (CST, 0x6060 = 10) and
+cyclic synchronous velocity (CSV, 0x6060 = 9) modes.
 
 Source: CiA 402-2 (IEC 61800-7-201) §6 "device control" (state machine, controlword 0x6040 command
-coding, statusword 0x6041 state coding, abort connection option 0x6007) and the CST mode objects
-0x6071 target torque, 0x6072 max torque, 0x6076 motor rated torque, 0x6077 torque actual value,
-plus 0x6064 position actual and 0x606C velocity actual. Units: docs/conventions.md.
+coding, statusword 0x6041 state coding, abort connection option 0x6007, quick stop option 0x605A) and
+the mode objects: CST 0x6071 target torque, CSV 0x60FF target velocity (increments/s) with the velocity
+control parameter set 0x60F9; common 0x6072 max torque, 0x6076 motor rated torque, 0x6077 torque actual
+value, 0x6087 torque slope (per mille/s), 0x6064 position actual and 0x606C velocity actual.
+Units: docs/conventions.md.
 
-Timing (lock-step, see ``hil.server``): at each SYNC the drive applies the RPDOs received since the last
-SYNC (controlword first takes effect here), latches the target torque, and the torque it applies
-from this instant is ``clip(0x6071, ±0x6072)`` in OPERATION ENABLED with mode 10, else 0.
+Timing (see ``hil.server``): at each SYNC the drive applies the RPDOs received since the last SYNC
+(controlword first takes effect here) and latches its torque for the coming cycle, in OPERATION
+ENABLED only (else 0):
+
+* CST: ``clip(0x6071, ±0x6072)``;
+* CSV: ``clip(K_p·(0x60FF − v) + I, ±0x6072)`` with ``v`` the velocity actual 0x606C sampled at the
+  previous SYNC, ``K_p`` = 0x60F9:1 [per mille of 0x6076 per 1000 increments/s] and the integral ``I``
+  accumulating ``K_p·e·T/T_i`` per cycle (``T_i`` = 0x60F9:2 [ms], 0 = no integral; anti-windup by
+  clamping ``I`` to ±0x6072); T = 0x1006.
+
+Quick stop (command, or 0x6007 = 3): the torque ramps from its last value to 0 at the torque slope
+0x6087; 0x605A = 1…4: then SWITCH ON DISABLED (transition 12); 5…8: stay in QUICK STOP ACTIVE
+(transition 16 possible); 0: disable drive function at once. The ramp advances per SYNC, so on SYNC
+loss the quick stop drops the torque at once.
+
+Over-torque: if |torque actual 0x6077| (the plant's measurement) exceeds max torque 0x6072 for longer
+than 0x2000 [ms] while the drive applies torque, the drive faults with error code 0x8311 (excess
+torque), sends EMCY 0x8311 and stops the torque (FAULT REACTION ACTIVE → FAULT).
 """
 from __future__ import annotations
 
@@ -21,8 +39,10 @@ from .node301 import ABORT_VALUE_RANGE, EMCY_COMMUNICATION, Node301
 logger = logging.getLogger(__name__)
 
 MODE_NONE = 0
+MODE_CSV = 9                                   # cyclic synchronous velocity
 MODE_CST = 10                                  # cyclic synchronous torque
-SUPPORTED_MODES = (MODE_NONE, MODE_CST)
+SUPPORTED_MODES = (MODE_NONE, MODE_CSV, MODE_CST)
+EMCY_EXCESS_TORQUE = 0x8311                    # CiA 402 error code "excess torque"
 
 # Statusword bits (CiA 402 §6, object 0x6041) beyond the state coding.
 SW_VOLTAGE_ENABLED = 1 << 4
@@ -34,6 +54,8 @@ CW_FAULT_RESET = 1 << 7
 
 # 0x6007 abort connection option codes.
 ABORT_NO_ACTION, ABORT_FAULT, ABORT_DISABLE_VOLTAGE, ABORT_QUICK_STOP = 0, 1, 2, 3
+# 0x605A quick stop option codes that end in SWITCH ON DISABLED after the ramp (others stay).
+_QUICK_STOP_THEN_DISABLE = (1, 2, 3, 4)
 
 
 class PowerState(enum.Enum):
@@ -101,7 +123,7 @@ _TRANSITIONS = {
     (S.OPERATION_ENABLED, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,      # 9
     (S.OPERATION_ENABLED, Command.QUICK_STOP): S.QUICK_STOP_ACTIVE,            # 11
     (S.QUICK_STOP_ACTIVE, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,      # 12
-    (S.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,      # 16
+    (S.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,      # 16 (0x605A = 5…8)
 }
 
 
@@ -110,7 +132,7 @@ def _int16(x: int) -> int:
 
 
 class Drive402(Node301):
-    """A CiA 402 servo drive supporting only cyclic synchronous torque mode.
+    """A CiA 402 servo drive in cyclic synchronous torque or velocity mode.
 
     Args:
         node_id, eds, lock, sync_timeout: see :class:`hil.node301.Node301`.
@@ -126,6 +148,8 @@ class Drive402(Node301):
         self.name = name or f"drive{node_id}"
         self._last_controlword = 0
         self._limited = False
+        self._integral = 0.0          # CSV integral part, per mille
+        self._over_torque_s = 0.0     # how long |0x6077| > 0x6072 has lasted
         super().__init__(node_id, eds, lock=lock, sync_timeout=sync_timeout)
         self.on_reset_application()
 
@@ -143,20 +167,54 @@ class Drive402(Node301):
     def latch_torque(self) -> int:
         """SYNC phase 2: latch the target torque; returns the applied torque in per mille of rated.
 
-        Applied = clip(0x6071, ±0x6072) in OPERATION ENABLED with mode display 10, else 0.
-        Call with :attr:`lock` held, after :meth:`sync_receive`.
+        OPERATION ENABLED: CST / CSV law of the module docstring; QUICK STOP ACTIVE: the ramp to 0;
+        else 0. Call with :attr:`lock` held, after :meth:`sync_receive`.
         """
         values = self.values
-        if self.state is S.OPERATION_ENABLED and values[(0x6061, 0)] == MODE_CST:
-            target, limit = values[(0x6071, 0)], values[(0x6072, 0)]
+        state = self.state
+        limited = False
+        if state is S.OPERATION_ENABLED:
+            mode, limit = values[(0x6061, 0)], values[(0x6072, 0)]
+            if mode == MODE_CST:
+                target = values[(0x6071, 0)]
+            elif mode == MODE_CSV:
+                target = self._velocity_control(limit)
+            else:
+                target = 0
             torque = -limit if target < -limit else limit if target > limit else target
             limited = torque != target
+        elif state is S.QUICK_STOP_ACTIVE:
+            torque = self._quick_stop_ramp()
         else:
-            torque, limited = 0, False
+            torque = 0
         self.applied_torque = torque
         if limited != self._limited:
             self._limited = limited
             self._update_statusword()
+        return torque
+
+    def _cycle_time(self) -> float:
+        return (self.values.get((0x1006, 0)) or 2000) * 1e-6
+
+    def _velocity_control(self, limit: int) -> int:
+        """CSV: PI velocity controller on 0x606C (sampled at the previous SYNC) → per mille."""
+        values = self.values
+        error = values[(0x60FF, 0)] - values[(0x606C, 0)]
+        kp = values.get((0x60F9, 1), 0) * 1e-3                 # per mille per increment/s
+        ti = values.get((0x60F9, 2), 0) * 1e-3                 # s
+        proportional = kp * error
+        if ti > 0:
+            integral = self._integral + proportional * self._cycle_time() / ti
+            self._integral = max(-limit, min(limit, integral))
+        return int(round(proportional + self._integral))
+
+    def _quick_stop_ramp(self) -> int:
+        """QUICK STOP ACTIVE: torque toward 0 at 0x6087 per mille/s; at 0, 0x605A = 1…4 → SWITCH ON DISABLED."""
+        step = max(1, int(self.values.get((0x6087, 0), 0) * self._cycle_time()))
+        torque = self.applied_torque
+        torque = 0 if abs(torque) <= step else torque - step if torque > 0 else torque + step
+        if torque == 0 and self.values.get((0x605A, 0), 2) in _QUICK_STOP_THEN_DISABLE:
+            self._set_state(S.SWITCH_ON_DISABLED)                             # 12, automatic
         return torque
 
     def set_actuals(self, position: int, velocity: int, torque: float) -> None:
@@ -170,11 +228,21 @@ class Drive402(Node301):
         values = self.values
         values[(0x6064, 0)] = ((position + 0x80000000) & 0xFFFFFFFF) - 0x80000000
         values[(0x606C, 0)] = max(-0x80000000, min(0x7FFFFFFF, velocity))
-        values[(0x6077, 0)] = _int16(round(torque * 1e6 / values[(0x6076, 0)]))
+        actual = values[(0x6077, 0)] = _int16(round(torque * 1e6 / values[(0x6076, 0)]))
+        if self.applied_torque and abs(actual) > values[(0x6072, 0)]:
+            self._over_torque_s += self._cycle_time()
+            if self._over_torque_s * 1e3 > values.get((0x2000, 0), 0):
+                self._over_torque_s = 0.0
+                self._fault(EMCY_EXCESS_TORQUE)
+                self.emcy_send(EMCY_EXCESS_TORQUE)
+        else:
+            self._over_torque_s = 0.0
 
     # ------------------------------------------------------------ hooks
     def validate_write(self, index, subindex, value):
         if index == 0x6060 and value not in SUPPORTED_MODES:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == 0x605A and not 0 <= value <= 8:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index == 0x6007 and value not in (0, 1, 2, 3):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
@@ -186,6 +254,7 @@ class Drive402(Node301):
             self._controlword(value)
         elif index == 0x6060:
             self.values[(0x6061, 0)] = value
+            self._integral = 0.0
             self._update_statusword()
 
     def on_reset_application(self):
@@ -193,6 +262,8 @@ class Drive402(Node301):
         self.applied_torque = 0
         self._last_controlword = self.values[(0x6040, 0)]
         self._limited = False
+        self._integral = 0.0
+        self._over_torque_s = 0.0
         self.values[(0x6061, 0)] = self.values[(0x6060, 0)]
         self.values[(0x603F, 0)] = 0
         self._set_state(S.SWITCH_ON_DISABLED)          # transition 1, automatic
@@ -215,8 +286,21 @@ class Drive402(Node301):
                 self._set_state(S.SWITCH_ON_DISABLED)
             return
         new = _TRANSITIONS.get((self.state, command))
-        if new is not None:
+        if new is S.OPERATION_ENABLED and self.state is S.QUICK_STOP_ACTIVE and \
+                self.values.get((0x605A, 0), 2) in _QUICK_STOP_THEN_DISABLE:
+            return                                   # 16 only with 0x605A = 5…8
+        if new is S.QUICK_STOP_ACTIVE:
+            self._enter_quick_stop()
+        elif new is not None:
             self._set_state(new)
+
+    def _enter_quick_stop(self) -> None:
+        if self.values.get((0x605A, 0), 2) == 0:                        # disable drive function
+            self._set_state(S.SWITCH_ON_DISABLED)
+            return
+        torque = self.applied_torque
+        self._set_state(S.QUICK_STOP_ACTIVE)
+        self.applied_torque = torque                                    # the ramp starts here
 
     def _abort_connection(self, error_code: int) -> None:
         """Reaction to a connection loss per 0x6007 (only while voltage is enabled)."""
@@ -224,16 +308,23 @@ class Drive402(Node301):
             return
         option = self.values[(0x6007, 0)]
         if option == ABORT_FAULT:
-            self.values[(0x603F, 0)] = error_code
-            self._set_state(S.FAULT_REACTION_ACTIVE)                       # 13
-            self._set_state(S.FAULT)                                       # 14: torque off, done
+            self._fault(error_code)
         elif option == ABORT_DISABLE_VOLTAGE:
             self._set_state(S.SWITCH_ON_DISABLED)
         elif option == ABORT_QUICK_STOP:
+            # without SYNC the ramp cannot run: the torque drops at once
             self._set_state(S.QUICK_STOP_ACTIVE if self.state is S.OPERATION_ENABLED
                             else S.SWITCH_ON_DISABLED)
         logger.warning("%s (node %d): connection lost, 0x6007 = %d → %s",
                        self.name, self.id, option, self.state.label)
+
+    def _fault(self, error_code: int) -> None:
+        """Transitions 13 + 14: error code 0x603F, torque off, FAULT."""
+        if self.state in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+            return
+        self.values[(0x603F, 0)] = error_code
+        self._set_state(S.FAULT_REACTION_ACTIVE)                           # 13
+        self._set_state(S.FAULT)                                           # 14: torque off, done
 
     def _set_state(self, state: PowerState) -> None:
         if state is not self.state:
@@ -251,7 +342,7 @@ class Drive402(Node301):
         if state is S.SWITCH_ON_DISABLED:
             word |= SW_QUICK_STOP
         if state is S.OPERATION_ENABLED:
-            if self.values[(0x6061, 0)] == MODE_CST:
+            if self.values[(0x6061, 0)] in (MODE_CST, MODE_CSV):
                 word |= SW_FOLLOWS_COMMAND
             if self._limited:
                 word |= SW_INTERNAL_LIMIT

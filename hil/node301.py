@@ -11,10 +11,20 @@ heartbeat producer and the EMCY producer. This module adds what a real device do
   Synchronous RPDOs (transmission type 0…240) are buffered and applied at the next SYNC; event-driven
   ones (254/255) at once. TPDOs are sent from :meth:`Node301.sync_transmit`: type 1…240 every n-th
   SYNC, type 0/254/255 at a SYNC when their data changed.
+* SDO server (CiA 301 §7.2.4, expedited and segmented) with the standard abort codes: object does not
+  exist 0x06020000, sub-index does not exist 0x06090011, read of a write-only object 0x06010001, write
+  to a read-only one 0x06010002 (refused at the initiate request, also for segmented transfers), data
+  type length too high 0x06070012 / too low 0x06070013, value above/below the EDS HighLimit/LowLimit
+  0x06090031 / 0x06090032, any other value the device refuses 0x06090030.
 * Supervision: SYNC loss (no SYNC for max(``sync_timeout``, 5·0x1006)) and RPDO deadline monitoring
-  (RPDO event timer, 0x1400 sub-index 5, CiA 301 §7.5.2.35) raise EMCY 0x8100 / 0x8250, set the
-  communication bit of the error register 0x1001 and call :meth:`Node301.on_communication_lost`.
+  (RPDO event timer, 0x1400 sub-index 5, CiA 301 §7.5.2.35) raise EMCY 0x8100 / 0x8250; the heartbeat
+  consumer (0x1016, CiA 301 §7.2.8.3.2.1: ``node_id << 16 | time_ms`` per sub-index; monitoring starts
+  with the first heartbeat of that node) raises EMCY 0x8130 when a heartbeat is overdue. Each sets the
+  communication bit of the error register 0x1001 and calls :meth:`Node301.on_communication_lost`.
   Malformed frames (wrong DLC) are dropped; short RPDOs raise EMCY 0x8210, long SYNCs EMCY 0x8240.
+* EMCY (CiA 301 §7.2.7) carries the error register 0x1001; every error code other than 0x0000 is also
+  pushed onto the pre-defined error field 0x1003 (newest at sub-index 1, at most 8; writing 0 to
+  sub-index 0 clears it, any other value is refused with 0x06090030).
 
 SYNC is not subscribed here: whoever hosts the nodes (``hil.server``) calls, under :attr:`lock`,
 :meth:`sync_receive` on every node, then the device application, then :meth:`sync_transmit`.
@@ -46,16 +56,24 @@ COB_ID_INVALID = 1 << 31
 _COB_ID_EXTENDED = 1 << 29
 
 # SDO abort codes (CiA 301 §7.2.4.3.17).
+ABORT_COMMAND_SPECIFIER = 0x05040001
 ABORT_UNSUPPORTED_ACCESS = 0x06010000
 ABORT_WRITE_ONLY = 0x06010001
 ABORT_READ_ONLY = 0x06010002
+ABORT_OBJECT_MISSING = 0x06020000
 ABORT_LENGTH = 0x06070010
+ABORT_LENGTH_HIGH = 0x06070012
+ABORT_LENGTH_LOW = 0x06070013
+ABORT_SUBINDEX_MISSING = 0x06090011
 ABORT_VALUE_RANGE = 0x06090030
+ABORT_VALUE_HIGH = 0x06090031
+ABORT_VALUE_LOW = 0x06090032
 ABORT_NO_DATA = 0x08000024
 
 # EMCY error codes (CiA 301 §7.2.7.1) and error register bits (0x1001).
 EMCY_NO_ERROR = 0x0000
 EMCY_COMMUNICATION = 0x8100
+EMCY_HEARTBEAT = 0x8130              # life guard / heartbeat error
 EMCY_PDO_LENGTH = 0x8210
 EMCY_SYNC_LENGTH = 0x8240
 EMCY_RPDO_TIMEOUT = 0x8250
@@ -63,6 +81,11 @@ ERROR_REGISTER_GENERIC = 0x01
 ERROR_REGISTER_COMMUNICATION = 0x10
 
 _COMM_RANGE = (0x1000, 0x2000)   # reset communication restores these (CiA 301 §7.3.2.2)
+_ERROR_FIELD = 0x1003
+_HEARTBEAT_CONSUMER = 0x1016
+_SDO_EXPEDITED, _SDO_SIZE_SPECIFIED = 0x02, 0x01
+_SDO_SEGMENT_REQUESTS = (0x00, 0x60)     # download / upload segment (client command specifier 0, 3)
+_SDO_ABORT_REQUEST = 0x80
 
 
 @dataclass
@@ -84,14 +107,49 @@ class _Nmt(NmtSlave):
 
 
 class _GatedSdoServer(SdoServer):
-    """SDO server answering only in PRE-OPERATIONAL/OPERATIONAL and only 8-byte requests."""
+    """SDO server answering only in PRE-OPERATIONAL/OPERATIONAL and only 8-byte requests.
+
+    Beyond canopen's server: an initiate download (expedited or segmented) is checked at once for an
+    existing, writable object and, where the size is indicated, for the data type's length; an
+    expedited download without size indication carries the object's own length (CiA 301 §7.2.4.3.3).
+    """
 
     def on_request(self, can_id, data, timestamp):
         node = self._node
         if len(data) != 8 or node.nmt_state not in (PRE_OPERATIONAL, OPERATIONAL):
             return
         with node.lock:
+            ccs = data[0] & 0xE0
+            if ccs in _SDO_SEGMENT_REQUESTS:
+                if self._buffer is None:                 # no transfer in progress
+                    self.abort(ABORT_COMMAND_SPECIFIER)
+                    return
+            elif ccs != _SDO_ABORT_REQUEST:
+                self._index, self._subindex = data[1] | data[2] << 8, data[3]   # echoed by an abort
+                self._buffer = None
             super().on_request(can_id, data, timestamp)
+
+    def init_download(self, request):
+        command = request[0]
+        index, subindex = request[1] | request[2] << 8, request[3]
+        obj = self._node._find_object(index, subindex)
+        if not obj.writable:
+            raise SdoAbortedError(ABORT_READ_ONLY)
+        if obj.data_type in od.NUMBER_TYPES:
+            size = len(obj) // 8
+            if command & _SDO_EXPEDITED and not command & _SDO_SIZE_SPECIFIED and size <= 4:
+                request = bytearray(request)
+                request[0] = command | _SDO_SIZE_SPECIFIED | (4 - size) << 2
+            elif command & _SDO_SIZE_SPECIFIED and not command & _SDO_EXPEDITED:
+                _check_length(int.from_bytes(request[4:8], "little"), size)
+        super().init_download(request)
+
+
+def _check_length(given: int, expected: int) -> None:
+    if given > expected:
+        raise SdoAbortedError(ABORT_LENGTH_HIGH)
+    if given < expected:
+        raise SdoAbortedError(ABORT_LENGTH_LOW)
 
 
 class Node301(canopen.LocalNode):
@@ -139,7 +197,10 @@ class Node301(canopen.LocalNode):
         self._last_sync: float | None = None
         self._sync_lost = False
         self._rpdo_lost = False
+        self._heartbeat_lost = False
+        self._consumers: dict[int, list] = {}       # producer id → [timeout s, last heartbeat | None]
         self._compile_pdos()
+        self._compile_consumers()
 
     # ------------------------------------------------------------------ state
     @property
@@ -181,9 +242,14 @@ class Node301(canopen.LocalNode):
             obj = self._find_object(index, subindex)
             if check_writable and not obj.writable:
                 raise SdoAbortedError(ABORT_READ_ONLY)
-            if obj.data_type in od.NUMBER_TYPES and 8 * len(data) != len(obj):
-                raise SdoAbortedError(ABORT_LENGTH)
-            self.write_value(obj.index, obj.subindex, obj.decode_raw(bytes(data)))
+            if obj.data_type in od.NUMBER_TYPES:
+                _check_length(len(data), len(obj) // 8)
+            value = obj.decode_raw(bytes(data))
+            if obj.max is not None and value > obj.max:
+                raise SdoAbortedError(ABORT_VALUE_HIGH)
+            if obj.min is not None and value < obj.min:
+                raise SdoAbortedError(ABORT_VALUE_LOW)
+            self.write_value(obj.index, obj.subindex, value)
 
     def write_value(self, index: int, subindex: int, value) -> None:
         """Write a decoded value as the device does for SDO and PDO writes: validate, store, react.
@@ -193,12 +259,18 @@ class Node301(canopen.LocalNode):
         """
         if 0x1400 <= index < 0x1C00:
             self._validate_pdo_parameter(index, subindex, value)
+        elif index == _ERROR_FIELD and subindex == 0 and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
         self.validate_write(index, subindex, value)
         self.values[(index, subindex)] = value
         if 0x1400 <= index < 0x1C00:
             self._compile_pdos()
         elif index == 0x1017 and self.nmt_state != INITIALISING:
             self.nmt.start_heartbeat(int(value))
+        elif index == _ERROR_FIELD:
+            self._clear_error_field()
+        elif index == _HEARTBEAT_CONSUMER:
+            self._compile_consumers()
         self.on_write(index, subindex, value)
 
     # ------------------------------------------------ application hooks
@@ -232,9 +304,12 @@ class Node301(canopen.LocalNode):
             for key, value in self._defaults.items():
                 if application or _COMM_RANGE[0] <= key[0] < _COMM_RANGE[1]:
                     self.values[key] = value
-            self._sync_lost = self._rpdo_lost = False
+            self._sync_lost = self._rpdo_lost = self._heartbeat_lost = False
             self.values[(0x1001, 0)] = 0
+            if application:
+                self._clear_error_field()
             self._compile_pdos()
+            self._compile_consumers()
             if application:
                 self.on_reset_application()
             self.nmt.send_command(NMT_RESET_NODE)        # state INITIALISING, sends boot-up
@@ -281,12 +356,15 @@ class Node301(canopen.LocalNode):
     def associate_network(self, network: canopen.Network) -> None:
         super().associate_network(network)
         self._subscribe_rpdos()
+        self._subscribe_consumers()
 
     def remove_network(self) -> None:
         if self.has_network():
             for cob_id in self._subscribed:
                 self.network.unsubscribe(cob_id, self._on_rpdo)
             self._subscribed = []
+            for producer in self._consumers:
+                self.network.unsubscribe(0x700 + producer, self._on_heartbeat)
         super().remove_network()
 
     def _validate_pdo_parameter(self, index: int, subindex: int, value) -> None:
@@ -449,9 +527,16 @@ class Node301(canopen.LocalNode):
             True if a loss was detected at this call.
         """
         with self.lock:
-            if self.nmt._state != OPERATIONAL:
-                return False
             tripped = False
+            if self.nmt._state in (PRE_OPERATIONAL, OPERATIONAL):
+                for producer, entry in self._consumers.items():
+                    if entry[1] is not None and now - entry[1] > entry[0]:
+                        entry[1] = None
+                        self._heartbeat_lost = True
+                        self._communication_lost(EMCY_HEARTBEAT, bytes([producer]))
+                        tripped = True
+            if self.nmt._state != OPERATIONAL:
+                return tripped
             if self.sync_timeout is not None and self._last_sync is not None:
                 period = self.values.get((0x1006, 0), 0) * 1e-6
                 if now - self._last_sync > max(self.sync_timeout, self.SYNC_LOSS_CYCLES * period):
@@ -468,18 +553,73 @@ class Node301(canopen.LocalNode):
                     tripped = True
             return tripped
 
-    def _communication_lost(self, code: int) -> None:
+    def _communication_lost(self, code: int, data: bytes = b"") -> None:
         self.values[(0x1001, 0)] |= ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION
         logger.warning("node %d: communication lost (EMCY 0x%04X)", self.id, code)
-        self.emcy_send(code)
+        self.emcy_send(code, data)
         self.on_communication_lost(code)
 
     def _maybe_clear_communication_error(self) -> None:
-        if not (self._sync_lost or self._rpdo_lost) and self.values[(0x1001, 0)]:
+        if not (self._sync_lost or self._rpdo_lost or self._heartbeat_lost) and self.values[(0x1001, 0)]:
             self.values[(0x1001, 0)] &= ~(ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
             self.emcy_send(EMCY_NO_ERROR)
 
+    # ---------------------------------------------------- heartbeat consumer
+    def _compile_consumers(self) -> None:
+        if _HEARTBEAT_CONSUMER not in self.object_dictionary:
+            return
+        consumers: dict[int, list] = {}
+        for sub in range(1, 128):
+            entry = self.values.get((_HEARTBEAT_CONSUMER, sub))
+            if entry is None:
+                break
+            producer, time_ms = (entry >> 16) & 0xFF, entry & 0xFFFF
+            if 1 <= producer <= 127 and time_ms:
+                consumers[producer] = [time_ms * 1e-3, None]
+        if self.has_network():
+            for producer in self._consumers:
+                self.network.unsubscribe(0x700 + producer, self._on_heartbeat)
+        self._consumers = consumers
+        if self._heartbeat_lost:
+            self._heartbeat_lost = False
+            self._maybe_clear_communication_error()
+        if self.has_network():
+            self._subscribe_consumers()
+
+    def _subscribe_consumers(self) -> None:
+        for producer in self._consumers:
+            self.network.subscribe(0x700 + producer, self._on_heartbeat)
+
+    def _on_heartbeat(self, can_id: int, data, timestamp: float) -> None:
+        if len(data) != 1:
+            return
+        with self.lock:
+            entry = self._consumers.get(can_id - 0x700)
+            if entry is None:
+                return
+            entry[1] = time.monotonic()
+            if self._heartbeat_lost and all(e[1] is not None for e in self._consumers.values()):
+                self._heartbeat_lost = False
+                self._maybe_clear_communication_error()
+
+    # ------------------------------------------------------------- EMCY
     def emcy_send(self, code: int, data: bytes = b"") -> None:
-        """Send an EMCY frame (CiA 301 §7.2.7) with the current error register; not in STOPPED."""
+        """Send an EMCY frame (CiA 301 §7.2.7) with the current error register; not in STOPPED.
+
+        A non-zero ``code`` is also recorded in the pre-defined error field 0x1003 (if the node has it).
+        """
+        if code and (_ERROR_FIELD, 1) in self.values:
+            size = 1
+            while (_ERROR_FIELD, size + 1) in self.values:
+                size += 1
+            for sub in range(size, 1, -1):
+                self.values[(_ERROR_FIELD, sub)] = self.values[(_ERROR_FIELD, sub - 1)]
+            self.values[(_ERROR_FIELD, 1)] = code
+            self.values[(_ERROR_FIELD, 0)] = min(self.values[(_ERROR_FIELD, 0)] + 1, size)
         if self.nmt._state in (PRE_OPERATIONAL, OPERATIONAL) and self.has_network():
             self.emcy.send(code, self.values.get((0x1001, 0), 0), data)
+
+    def _clear_error_field(self) -> None:
+        for key in self.values:
+            if key[0] == _ERROR_FIELD:
+                self.values[key] = 0

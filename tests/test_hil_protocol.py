@@ -208,6 +208,7 @@ def test_base_node_402_walks_state_machine(channel, plant):
             node.nmt.state = "RESET COMMUNICATION"
             assert booted.wait(2)
             assert node.sdo.upload(0x6076, 0) == struct.pack("<I", 2000)   # segmented/expedited SDO
+            node.sdo[0x605A].raw = 6                           # quick stop: stay in QUICK STOP ACTIVE
             node.setup_402_state_machine(read_pdos=True)
             node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
             assert node.sdo[0x6061].raw == 10                  # the setter swallows timeouts: read back
@@ -270,6 +271,8 @@ def test_torque_arrives_in_newton_metres(master, server, plant):
 def test_torque_zero_unless_operation_enabled(master, server, plant):
     master.nmt(0x01)
     master.drive[1].sdo[0x6060].raw = 10
+    master.drive[1].sdo[0x605A].raw = 6                                 # quick stop: stay (16 allowed)
+    master.drive[1].sdo[0x6087].raw = 10**6                             # ‰/s: ramp 2000 ‰ per cycle
     for cw, state in ((0x00, PowerState.SWITCH_ON_DISABLED), (0x06, PowerState.READY_TO_SWITCH_ON),
                       (0x07, PowerState.SWITCHED_ON)):
         master.cycle([rpdo1(1, cw, 800)])
