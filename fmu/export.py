@@ -73,7 +73,7 @@ HEADERS = {2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
 UNITS = {
     "s": {"s": 1}, "m": {"m": 1}, "rad": {"rad": 1}, "kg": {"kg": 1}, "kg.m2": {"kg": 1, "m": 2},
     "N.m": {"kg": 1, "m": 2, "s": -2}, "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
-    "rad/s": {"rad": 1, "s": -1},
+    "rad/s": {"rad": 1, "s": -1}, "m/s": {"m": 1, "s": -1},
 }
 
 _PARAMETER_INFO = {  # name: (unit, description)
@@ -107,7 +107,7 @@ class Variable:
     """One scalar FMU variable.
 
     ``type`` is the FMI 3 type name (``Float64``, ``Int32``, ``Boolean``; FMI 2: Real, Integer,
-    Boolean). ``group``: name of the ``FF_<GROUP>`` macro in ``config.h`` that holds the storage index
+    Boolean). ``group``: name of the ``FF_<GROUP>`` (plant: ``PL_<GROUP>``) macro in ``config.h`` that holds the storage index
     of the group's first variable (groups are contiguous). ``vr`` is the value reference, ``index`` the
     position in the value array of its type (both assigned by :func:`feedforward_variables`).
     """
@@ -185,9 +185,18 @@ def feedforward_variables(p: dict[str, float], geometry, i_G: float, eps: float 
         out.append(Variable(f"motor_torque.{w}", "Float64", "output", "continuous",
                             f"feed-forward motor torque (21), wheel {w}, motor side of the gear",
                             unit="N.m", group="MOTOR_TORQUE" if j == 0 else None))
+    if not i_G > 0:
+        raise ValueError(f"i_G must be > 0, got {i_G!r}")
+    if not eps > 0:
+        raise ValueError(f"eps must be > 0 rad/s, got {eps!r}")
+    return _numbered(out)
+
+
+def _numbered(variables: list[Variable]) -> list[Variable]:
+    """Assign value references (list order) and storage indices (per type); check finite start values."""
     counters = {"Float64": 0, "Int32": 0, "Boolean": 0}
     numbered = []
-    for vr, v in enumerate(out):
+    for vr, v in enumerate(variables):
         if v.start is not None and v.type == "Float64" and not (abs(v.start) < float("inf")):
             raise ValueError(f"{v.name} must be finite, got {v.start!r}")
         if v.causality == "independent":
@@ -195,10 +204,6 @@ def feedforward_variables(p: dict[str, float], geometry, i_G: float, eps: float 
             continue
         numbered.append(replace(v, vr=vr, index=counters[v.type]))
         counters[v.type] += 1
-    if not i_G > 0:
-        raise ValueError(f"i_G must be > 0, got {i_G!r}")
-    if not eps > 0:
-        raise ValueError(f"eps must be > 0 rad/s, got {eps!r}")
     return numbered
 
 
@@ -214,9 +219,13 @@ def _xml_value(value) -> str:
     return repr(float(value))
 
 
-def _dependencies(variables: list[Variable]) -> list[Variable]:
-    used = {"k", "q.alpha_l", "q.alpha_r", "s_dot[1]", "s_dot[2]", "s_ddot[1]", "s_ddot[2]", "alpha_v"}
-    return [v for v in variables if v.name in used]
+FEEDFORWARD_DEPENDENCIES = ("k", "q.alpha_l", "q.alpha_r", "s_dot[1]", "s_dot[2]", "s_ddot[1]", "s_ddot[2]",
+                            "alpha_v")
+"""Inputs every output of the feed-forward FMU depends on directly (ModelStructure)."""
+
+
+def _dependencies(variables: list[Variable], names=FEEDFORWARD_DEPENDENCIES) -> list[Variable]:
+    return [v for v in variables if v.name in set(names)]
 
 
 def _unit_definitions(parent: ET.Element, variables: list[Variable]) -> None:
@@ -235,7 +244,8 @@ def _log_categories(parent: ET.Element) -> None:
         ET.SubElement(cats, "Category", name=name, description=text)
 
 
-def _model_description_fmi2(variables, identifier, token, description, tool, step_size, source_files) -> ET.Element:
+def _model_description_fmi2(variables, identifier, token, description, tool, step_size, source_files,
+                            dependencies=FEEDFORWARD_DEPENDENCIES) -> ET.Element:
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": token, "description": description,
         "generationTool": tool, "variableNamingConvention": "structured", "numberOfEventIndicators": "0"})
@@ -257,7 +267,7 @@ def _model_description_fmi2(variables, identifier, token, description, tool, ste
         ET.SubElement(sv, _FMI2_TYPE[v.type], _value_attrs(v))
     ms = ET.SubElement(root, "ModelStructure")
     outputs = ET.SubElement(ms, "Outputs")
-    deps = " ".join(str(v.vr + 1) for v in _dependencies(variables))
+    deps = " ".join(str(v.vr + 1) for v in _dependencies(variables, dependencies))
     for v in variables:
         if v.causality == "output":
             ET.SubElement(outputs, "Unknown", index=str(v.vr + 1), dependencies=deps)
@@ -268,7 +278,8 @@ def _model_description_fmi2(variables, identifier, token, description, tool, ste
     return root
 
 
-def _model_description_fmi3(variables, identifier, token, description, tool, step_size) -> ET.Element:
+def _model_description_fmi3(variables, identifier, token, description, tool, step_size,
+                            dependencies=FEEDFORWARD_DEPENDENCIES) -> ET.Element:
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": identifier, "instantiationToken": token,
         "description": description, "generationTool": tool, "variableNamingConvention": "structured"})
@@ -285,7 +296,7 @@ def _model_description_fmi3(variables, identifier, token, description, tool, ste
     for v in variables:  # FMI 3: all attributes on the typed variable element (FMI 3.0 §2.4.7)
         ET.SubElement(mv, v.type, {**_variable_attrs(v), **_value_attrs(v)})
     ms = ET.SubElement(root, "ModelStructure")
-    deps = " ".join(str(v.vr) for v in _dependencies(variables))
+    deps = " ".join(str(v.vr) for v in _dependencies(variables, dependencies))
     for v in variables:
         if v.causality == "output":
             ET.SubElement(ms, "Output", valueReference=str(v.vr), dependencies=deps)
@@ -351,7 +362,7 @@ def _c_value(v: Variable) -> str:
     return repr(float(v.start or 0.0))
 
 
-def _config_h(variables: list[Variable], identifier: str, token: str) -> str:
+def _config_h(variables: list[Variable], identifier: str, token: str, prefix: str = "FF", n_states: int = 0) -> str:
     by_type = {t: [v for v in variables if v.type == t and v.causality != "independent"]
                for t in ("Float64", "Int32", "Boolean")}
     lines = [
@@ -365,12 +376,13 @@ def _config_h(variables: list[Variable], identifier: str, token: str) -> str:
         f"#define N_VARIABLES {len(variables)}",
         f"#define N_FLOAT64 {len(by_type['Float64'])}",
         f"#define N_INT32 {len(by_type['Int32'])}",
-        f"#define N_BOOLEAN {len(by_type['Boolean'])}", "",
+        f"#define N_BOOLEAN {len(by_type['Boolean'])}",
+        f"#define N_STATES {int(n_states)}", "",
         "/* storage index of the first variable of each contiguous group (used by model.c) */",
     ]
     for v in variables:
         if v.group:
-            lines.append(f"#define FF_{v.group} {v.index} /* {v.name} */")
+            lines.append(f"#define {prefix}_{v.group} {v.index} /* {v.name} */")
     lines += ["", "#define FMU_VARIABLE_TABLE { \\"]
     for v in variables:
         tunable = "true" if v.variability == "tunable" else "false"
@@ -469,44 +481,53 @@ def export_feedforward_fmu(identification: "IdentificationResult | str | os.Path
         ident.identify.RunDirectoryError: no identification.json at the given path.
         FmuExportError: compilation failed.
     """
+    out, identifier = _resolve_out(out, fmi_version, model_identifier, DEFAULT_MODEL_IDENTIFIER)
+    values, std = _identification_values(identification)
+    variables = feedforward_variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std)
+    description = (f"Feed-forward control (21) of the quasi-omnidirectional platform "
+                   f"'{datasheet.name}': motor torques from q, s_dot_k, s_ddot_k and the identified p")
+    return _package(out, identifier, fmi_version, variables, "feedforward", MODEL_SOURCES, codegen.generate_c(),
+                    description, datasheet.drive.cycle_time, FEEDFORWARD_DEPENDENCIES, "FF", 0, compiler)
+
+
+def _resolve_out(out, fmi_version: int, model_identifier: str | None, default: str) -> tuple[Path, str]:
+    """The .fmu path and the model identifier (see the ``out``/``model_identifier`` arguments)."""
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     out = Path(out)
     if out.is_dir():
-        identifier = _check_identifier(model_identifier or DEFAULT_MODEL_IDENTIFIER)
-        out = out / f"{identifier}.fmu"
-    else:
-        if out.suffix != ".fmu":
-            raise ValueError(f"out must end with .fmu, got {str(out)!r}")
-        stem_ok = re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", out.stem) is not None
-        identifier = _check_identifier(model_identifier or (out.stem if stem_ok else DEFAULT_MODEL_IDENTIFIER))
-    values, std = _identification_values(identification)
-    variables = feedforward_variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std)
+        identifier = _check_identifier(model_identifier or default)
+        return out / f"{identifier}.fmu", identifier
+    if out.suffix != ".fmu":
+        raise ValueError(f"out must end with .fmu, got {str(out)!r}")
+    stem_ok = re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", out.stem) is not None
+    return out, _check_identifier(model_identifier or (out.stem if stem_ok else default))
 
-    generated = codegen.generate_c()
+
+def _package(out: Path, identifier: str, fmi_version: int, variables: list[Variable], model_dir: str,
+             model_sources: tuple[str, ...], generated: codegen.GeneratedCode, description: str, step: float,
+             dependencies: tuple[str, ...], prefix: str, n_states: int, compiler: str | None) -> Path:
+    """Write config.h and modelDescription.xml, copy the sources, compile the binary and zip the FMU."""
     c_dir = c_source_directory()
     api = f"fmi{fmi_version}Functions.c"
     files: dict[str, str] = {api: (c_dir / api).read_text()}
     files.update({name: (c_dir / name).read_text() for name in GENERIC_SOURCES})
-    files.update({name: (c_dir / "feedforward" / name).read_text() for name in MODEL_SOURCES})
+    files.update({name: (c_dir / model_dir / name).read_text() for name in model_sources})
     files.update(generated.files())
     files.update({name: (c_dir / "include" / name).read_text() for name in HEADERS[fmi_version]})
     c_files = sorted(name for name in files if name.endswith(".c"))
 
-    description = (f"Feed-forward control (21) of the quasi-omnidirectional platform "
-                   f"'{datasheet.name}': motor torques from q, s_dot_k, s_ddot_k and the identified p")
     tool = _tool_name()
     fingerprint = json.dumps({"fmi": fmi_version, "id": identifier, "files": files,
                               "variables": [(v.name, v.vr, v.start) for v in variables]}, sort_keys=True)
     token = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "qomni-fmu:" + hashlib.sha256(
         fingerprint.encode()).hexdigest())) + "}"
-    files["config.h"] = _config_h(variables, identifier, token)
+    files["config.h"] = _config_h(variables, identifier, token, prefix, n_states)
 
-    step = datasheet.drive.cycle_time
     if fmi_version == 2:
-        md = _model_description_fmi2(variables, identifier, token, description, tool, step, c_files)
+        md = _model_description_fmi2(variables, identifier, token, description, tool, step, c_files, dependencies)
     else:
-        md = _model_description_fmi3(variables, identifier, token, description, tool, step)
+        md = _model_description_fmi3(variables, identifier, token, description, tool, step, dependencies)
     with tempfile.TemporaryDirectory(prefix="qomni_fmu_") as tmp:
         root = Path(tmp)
         src = root / "sources"
@@ -525,5 +546,119 @@ def export_feedforward_fmu(identification: "IdentificationResult | str | os.Path
     return out
 
 
+# --- the plant FMU ------------------------------------------------------------------------------------
+DEFAULT_PLANT_IDENTIFIER = "qomni_plant"
+PLANT_SOURCES = ("plant.c", "plant.h", "model.c")
+PLANT_N_STATES = 13
+"""Doubles of the plant's internal state (fmu/c/plant/plant.h, QOMNI_PLANT_N_STATE)."""
+
+PLANT_SETTINGS = {  # name: (default, unit, description)
+    "mode_tol": (1e-3, "rad", "tolerance of the configuration test (9): alpha within mode_tol of mode 2, 3 or 4's "
+                              "configuration lets the chassis move in that mode"),
+    "omega_rest": (0.02, "rad/s", "wheel rolling rate (wheel side) below which a chassis motion whose drive force "
+                                  "does not exceed the static Coulomb level comes to rest (stiction)"),
+    "max_step": (2.5e-4, "s", "largest internal RK4 sub-step (also limited to 2/lambda of the friction stiffness)"),
+}
+
+PLANT_DESCRIPTION = (
+    "Hybrid plant of the quasi-omnidirectional platform '{name}': the paper's reduced dynamics (19)/(20) "
+    "H_k^T M H_k s_ddot_k = H_k^T B u - H_k^T Theta(q, H_k s_dot_k, H_dot_k s_dot_k) p per motion mode k with "
+    "viscous + tanh-Coulomb friction, RK4 on internal sub-steps, motor torques held over a communication step. "
+    "At rest (k = 1) the steering moves under H_1^T B u between the stops +-steering_limit and the chassis "
+    "stands still; when the steering angles are within mode_tol of mode 2, 3 or 4's configuration (9) and the "
+    "drive force on that mode's chassis coordinate exceeds its static Coulomb level d_cw sum|h_beta| "
+    "(mode 3: and no side is pulled off its stop by more than its static steering friction), the chassis "
+    "moves in that mode (alpha snapped onto the configuration). While the chassis moves, torque components "
+    "that violate the mode's constraints (steering off the configuration, driving against the ICR) are "
+    "absorbed by the constraint forces: the mode stays until the chassis rate falls below omega_rest (or "
+    "crosses zero) with the drive force at or below the static level, then k = 1 again.")
+
+
+def plant_variables(p: dict[str, float], geometry, i_G: float, eps: float = DEFAULT_EPS,
+                    std: dict[str, float] | None = None) -> list[Variable]:
+    """The variables of the plant FMU (order = value references):
+
+    * ``time``; tunable parameters p (18), ``l, b, a, r`` (m), ``steering_limit`` (rad), ``i_G``, ``eps``
+      (rad/s), ``mode_tol`` (rad), ``omega_rest`` (rad/s), ``max_step`` (s); fixed parameters (initial state,
+      at rest) ``x0, y0`` (m), ``gamma0, alpha_l0, alpha_r0`` (rad);
+    * inputs ``motor_torque.fl, .rl, .fr, .rr`` (N m, motor side);
+    * outputs ``x_w, y_w, gamma_ch`` (world pose), ``x_ch_dot, y_ch_dot`` (m/s, chassis frame),
+      ``gamma_ch_dot`` (rad/s), ``alpha_l, alpha_r`` (rad), ``alpha_l_dot, alpha_r_dot`` (rad/s),
+      ``motor_position.<wheel>`` (rad, motor side, i_G beta), ``motor_velocity.<wheel>`` (rad/s),
+      ``k`` (engaged mode: 1 at rest, 2/3/4 chassis moving) and ``k_configuration`` ((9) of alpha).
+
+    Args and errors as :func:`feedforward_variables` (``geometry`` also needs ``steering_limit``, default pi/2).
+    """
+    std = std or {}
+    out = [v for v in feedforward_variables(p, geometry, i_G, eps, std)
+           if v.causality in ("independent", "parameter") and v.type == "Float64"]
+    out = [replace(v, vr=-1, index=-1) for v in out]
+    limit = float(getattr(geometry, "steering_limit", 1.5707963267948966))
+    at = next(j for j, v in enumerate(out) if v.name == "i_G")
+    out.insert(at, Variable("steering_limit", "Float64", "parameter", "tunable",
+                            "mechanical steering stops at +-steering_limit", start=limit, unit="rad",
+                            group="STEERING_LIMIT"))
+    for name, (default, unit, text) in PLANT_SETTINGS.items():
+        out.append(Variable(name, "Float64", "parameter", "tunable", text, start=default, unit=unit,
+                            group=name.upper()))
+    for j, (name, unit, text) in enumerate((("x0", "m", "initial world x of the chassis centre"),
+                                            ("y0", "m", "initial world y of the chassis centre"),
+                                            ("gamma0", "rad", "initial yaw angle gamma_ch"),
+                                            ("alpha_l0", "rad", "initial left steering angle"),
+                                            ("alpha_r0", "rad", "initial right steering angle"))):
+        out.append(Variable(name, "Float64", "parameter", "fixed", f"{text} (the vehicle starts at rest)",
+                            start=0.0, unit=unit, group="INITIAL" if j == 0 else None))
+    for j, w in enumerate(WHEELS):
+        out.append(Variable(f"motor_torque.{w}", "Float64", "input", "continuous",
+                            f"motor torque u, wheel {w}, motor side of the gear (wheel torque = i_G u)",
+                            start=0.0, unit="N.m", group="MOTOR_TORQUE" if j == 0 else None))
+    outputs = [("x_w", "m", "world x of the chassis centre", "POSE"),
+               ("y_w", "m", "world y of the chassis centre", None),
+               ("gamma_ch", "rad", "chassis yaw angle", None),
+               ("x_ch_dot", "m/s", "chassis velocity along the chassis x axis", "VELOCITY"),
+               ("y_ch_dot", "m/s", "chassis velocity along the chassis y axis", None),
+               ("gamma_ch_dot", "rad/s", "yaw rate", None),
+               ("alpha_l", "rad", "left steering angle alpha_l = phi_fl = -phi_rl", "ALPHA"),
+               ("alpha_r", "rad", "right steering angle alpha_r = phi_fr = -phi_rr", None),
+               ("alpha_l_dot", "rad/s", "left steering rate", "ALPHA_DOT"),
+               ("alpha_r_dot", "rad/s", "right steering rate", None)]
+    outputs += [(f"motor_position.{w}", "rad", f"motor shaft angle i_G beta_{w} (encoder)",
+                 "MOTOR_POSITION" if j == 0 else None) for j, w in enumerate(WHEELS)]
+    outputs += [(f"motor_velocity.{w}", "rad/s", f"motor shaft rate i_G beta_dot_{w} (encoder)",
+                 "MOTOR_VELOCITY" if j == 0 else None) for j, w in enumerate(WHEELS)]
+    for name, unit, text, group in outputs:
+        out.append(Variable(name, "Float64", "output", "continuous", text, unit=unit, group=group))
+    out.append(Variable("k", "Int32", "output", "discrete",
+                        "engaged motion mode: 1 at rest (wheel alignment), 2 steered longitudinal, 3 lateral, "
+                        "4 rotation (chassis moving)", group="K"))
+    out.append(Variable("k_configuration", "Int32", "output", "discrete",
+                        "motion mode (9) of the steering angles alone (tolerance mode_tol)",
+                        group="K_CONFIGURATION"))
+    return _numbered(out)
+
+
+def export_plant_fmu(identification: "IdentificationResult | str | os.PathLike", datasheet: "DataSheet",
+                     out: str | os.PathLike, fmi_version: int = 2, *, model_identifier: str | None = None,
+                     eps: float = DEFAULT_EPS, compiler: str | None = None) -> Path:
+    """Build a Co-Simulation FMU of the identified vehicle as a plant: motor torques in, pose, velocities,
+    steering angles, encoder signals and the motion mode out (hybrid rules: ``PLANT_DESCRIPTION`` and
+    :mod:`fmu.plant_reference`; C sources ``fmu/c/plant``, equations generated by
+    :func:`fmu.codegen.generate_plant_c` from :mod:`ident.symbolic`).
+
+    Arguments, result and errors as :func:`export_feedforward_fmu`; the default identifier is
+    ``qomni_plant``. The FMU has an internal state (FMU state get/set/serialize includes it), outputs do
+    not depend directly on the inputs (ModelStructure: ``dependencies=""``), any communication step
+    size > 0 is accepted (internal sub-steps, see parameter ``max_step``).
+    """
+    out, identifier = _resolve_out(out, fmi_version, model_identifier, DEFAULT_PLANT_IDENTIFIER)
+    values, std = _identification_values(identification)
+    variables = plant_variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std)
+    description = PLANT_DESCRIPTION.format(name=datasheet.name)
+    return _package(out, identifier, fmi_version, variables, "plant", PLANT_SOURCES, codegen.generate_plant_c(),
+                    description, datasheet.drive.cycle_time, (), "PL", PLANT_N_STATES, compiler)
+
+
 __all__ = ["DEFAULT_MODEL_IDENTIFIER", "DEFAULT_EPS", "BINARY_DIRECTORY", "UNITS", "FmuExportError", "Variable",
-           "feedforward_variables", "c_source_directory", "compile_binary", "export_feedforward_fmu"]
+           "feedforward_variables", "c_source_directory", "compile_binary", "export_feedforward_fmu",
+           "FEEDFORWARD_DEPENDENCIES", "DEFAULT_PLANT_IDENTIFIER", "PLANT_SETTINGS", "PLANT_DESCRIPTION",
+           "plant_variables", "export_plant_fmu"]

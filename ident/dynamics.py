@@ -177,5 +177,55 @@ def feedforward(k: int, q, sd, sdd, p, geometry, i_G: float, eps: float = EPS,
     return np.einsum("njk,nk->nj", np.linalg.pinv(HB), tau)
 
 
+def mass_matrix(p) -> np.ndarray:
+    """M(p) of (14), shape (9, 9): diag(m_ch, m_ch, C_ch + C_l + C_r, C_l, C_r, B_w, B_w, B_w, B_w),
+    the q_ddot coefficients of Theta p (16) (constant). Raises ValueError if p is not of shape (11,)."""
+    p = np.asarray(p, dtype=float)
+    if p.shape != (len(PARAMETER_NAMES),):
+        raise ValueError(f"p must have shape ({len(PARAMETER_NAMES)},), got {p.shape}")
+    v = {name: p[j] for name, j in _J.items()}
+    return np.diag([v["m_ch"], v["m_ch"], v["C_ch"] + v["C_l"] + v["C_r"], v["C_l"], v["C_r"],
+                    v["B_w"], v["B_w"], v["B_w"], v["B_w"]])
+
+
+def forward_dynamics(k: int, q, sd, u, p, geometry, i_G: float, eps: float = EPS,
+                     alpha_v=None) -> np.ndarray:
+    """Generalized accelerations of mode k from motor torques: (19) with (20) solved for s_ddot_k,
+
+    ``H_k^T M H_k s_ddot_k = H_k^T B u - H_k^T Theta(q, q_dot, H_dot_k s_dot_k) p``, q_dot = H_k s_dot_k,
+
+    where Theta(q, q_dot, H_dot_k s_dot_k) p = M H_dot_k s_dot_k + g(q, q_dot) (centripetal terms and
+    viscous + tanh-Coulomb friction). The constraint forces A^T lambda drop out (5): torque components
+    outside the range of H_k are taken by the constraints.
+
+    Args:
+        k: motion mode 1..4; q: (N, 9) (only alpha = q[:, 3:5] is used); sd: (N, n_k) s_dot_k;
+        u: (N, 4) motor-side torques, N m; p: (11,); geometry: l, b, a, r; i_G; eps (rad/s, > 0);
+        alpha_v: k = 2 only, (N,) or scalar rad; default implied by alpha.
+    Returns:
+        (N, n_k) s_ddot_k (rad/s^2 or m/s^2).
+    Raises:
+        ValueError: k not in 1..4, bad shapes, p not (11,), i_G <= 0, eps <= 0.
+    """
+    if not eps > 0:
+        raise ValueError(f"eps must be > 0 rad/s, got {eps!r}")
+    k = _kin._check_mode(k)
+    q = _samples(q, 9, "q")
+    u = _samples(u, 4, "u")
+    if k == 2 and alpha_v is None:
+        alpha_v = _kin.alpha_v_from_alpha(q[:, 3:5], geometry)
+    nk = _kin.N_GENERALIZED[k]
+    sd = _samples(sd, nk, "sd")
+    _same_n((q, "q"), (sd, "sd"), (u, "u"))
+    M = mass_matrix(p)
+    qd, qdd0 = generalized_state(k, q, sd, np.zeros_like(sd), geometry, alpha_v=alpha_v)
+    Hk = _kin.H(k, q[:, 3:5], geometry, alpha_v=alpha_v)
+    bias = np.einsum("nik,nij,j->nk", Hk, regressor(q, qd, qdd0, eps=eps), np.asarray(p, dtype=float))
+    tau = np.einsum("nik,nij,nj->nk", Hk, input_matrix(q, i_G), u)
+    Mk = np.einsum("nik,ij,njl->nkl", Hk, M, Hk)
+    return np.linalg.solve(Mk, (tau - bias)[..., None])[..., 0]
+
+
 __all__ = ["EPS", "PARAMETER_NAMES", "coulomb", "regressor", "input_matrix", "reduced_regressor",
-           "reduced_input", "reduced", "generalized_state", "feedforward"]
+           "reduced_input", "reduced", "generalized_state", "feedforward",
+           "mass_matrix", "forward_dynamics"]

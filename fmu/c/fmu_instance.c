@@ -193,9 +193,20 @@ FmuStatus fmu_enter_initialization(FmuInstance *instance, double start_time) {
     return FMU_OK;
 }
 
+static FmuStatus initialize_if_needed(FmuInstance *instance) {
+    if (instance->values.initialized) return FMU_OK;
+    char text[FMU_MESSAGE_SIZE] = "";
+    if (fmu_model_initialize(&instance->values, text, sizeof text) != FMU_OK)
+        return fmu_error(instance, "cannot set the initial state: %s", text);
+    instance->values.initialized = true;
+    instance->values.dirty = true;
+    return FMU_OK;
+}
+
 FmuStatus fmu_exit_initialization(FmuInstance *instance) {
     FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION, "ExitInitializationMode");
     if (s != FMU_OK) return s;
+    if (initialize_if_needed(instance) != FMU_OK) return FMU_ERROR;
     instance->mode = FMU_MODE_STEP;
     return FMU_OK;
 }
@@ -208,7 +219,11 @@ FmuStatus fmu_do_step(FmuInstance *instance, double t, double h) {
     double now = instance->values.time;
     if (!isfinite(t) || fabs(t - now) > 1e-9 * fmax(1.0, fabs(now)))
         return fmu_error(instance, "currentCommunicationPoint %.17g differs from the FMU time %.17g", t, now);
+    char text[FMU_MESSAGE_SIZE] = "";
+    if (fmu_model_do_step(&instance->values, h, text, sizeof text) != FMU_OK)
+        return fmu_error(instance, "step from t = %.17g by %.17g s failed: %s", t, h, text);
     instance->values.time = t + h; /* variable communication step size: any h > 0 */
+    instance->values.dirty = true;
     return FMU_OK;
 }
 
@@ -243,7 +258,9 @@ static const FmuVariable *lookup(FmuInstance *instance, uint32_t vr, FmuType typ
 }
 
 static FmuStatus calculate_if_needed(FmuInstance *instance, const FmuVariable *v) {
-    if (v->causality != FMU_OUTPUT || !instance->values.dirty) return FMU_OK;
+    if (v->causality != FMU_OUTPUT) return FMU_OK;
+    if (initialize_if_needed(instance) != FMU_OK) return FMU_ERROR;
+    if (!instance->values.dirty) return FMU_OK;
     char text[FMU_MESSAGE_SIZE] = "";
     FmuStatus s = fmu_model_calculate(&instance->values, text, sizeof text);
     if (s == FMU_OK) {
@@ -316,6 +333,7 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const uint32_t vr[], size_t n, 
         if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
         instance->values.float64[v->index] = value[i];
         instance->values.dirty = true;
+        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
     }
     return FMU_OK;
 }
@@ -327,6 +345,7 @@ FmuStatus fmu_set_int32(FmuInstance *instance, const uint32_t vr[], size_t n, co
         if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
         instance->values.int32[v->index] = value[i];
         instance->values.dirty = true;
+        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
     }
     return FMU_OK;
 }
@@ -338,6 +357,7 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, 
         if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
         instance->values.boolean[v->index] = value[i];
         instance->values.dirty = true;
+        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
     }
     return FMU_OK;
 }

@@ -8,9 +8,12 @@
  * causality/mode checks, the co-simulation step, FMU state get/set/serialize) and the thin API layers
  * fmi2Functions.c (FMI 2.0) and fmi3Functions.c (FMI 3.0), which export every FMI function.
  *
- * The models are direct-feedthrough (algebraic) co-simulation slaves without internal states: outputs
- * are recalculated lazily from the current parameters and inputs when an output is read. The FMU state
- * (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is therefore the time plus all variable values.
+ * Outputs are recalculated lazily from the current parameters, inputs and internal state when an output
+ * is read. A model may have an internal state (N_STATES doubles in config.h, default 0): it is set from
+ * the parameters by fmu_model_initialize() (before the first output is read or at the latest in
+ * ExitInitializationMode; again after a parameter is set outside Step Mode) and advanced by
+ * fmu_model_do_step(). The FMU state (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is the time, all
+ * variable values and the internal state.
  */
 #ifndef FMU_INSTANCE_H
 #define FMU_INSTANCE_H
@@ -43,6 +46,10 @@ typedef struct {
 #error "config.h must define N_FLOAT64, N_INT32, N_BOOLEAN, N_VARIABLES"
 #endif
 
+#ifndef N_STATES
+#define N_STATES 0
+#endif
+
 #define FMU_ARRAY_SIZE(n) ((n) > 0 ? (n) : 1)
 
 /* All variable values of one instance (also the content of an FMU state). */
@@ -51,12 +58,19 @@ typedef struct {
     double float64[FMU_ARRAY_SIZE(N_FLOAT64)];
     int32_t int32[FMU_ARRAY_SIZE(N_INT32)];
     bool boolean[FMU_ARRAY_SIZE(N_BOOLEAN)];
-    bool dirty; /* outputs must be recalculated before they are read */
+    double state[FMU_ARRAY_SIZE(N_STATES)]; /* the model's internal state */
+    bool dirty;       /* outputs must be recalculated before they are read */
+    bool initialized; /* state set from the current parameters */
 } FmuValues;
 
-/* Implemented by the model (model.c): compute all outputs in v from its parameters and inputs.
- * On failure write a message (NUL-terminated, at most size bytes) and return FMU_ERROR. */
+/* Implemented by the model (model.c); on failure each writes a message (NUL-terminated, at most size
+ * bytes) and returns FMU_ERROR.
+ *   fmu_model_calculate: compute all outputs in v from its parameters, inputs and state;
+ *   fmu_model_initialize: set v->state from the parameters (initial state);
+ *   fmu_model_do_step: advance v->state over the communication step h > 0 (leave it unchanged on error). */
 FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size);
+FmuStatus fmu_model_initialize(FmuValues *v, char *message, size_t size);
+FmuStatus fmu_model_do_step(FmuValues *v, double h, char *message, size_t size);
 
 typedef enum {
     FMU_MODE_INSTANTIATED = 1,

@@ -19,3 +19,14 @@ FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size) {
     for (int j = 0; j < 4; j++) v->float64[FF_MOTOR_TORQUE + j] = u[j];
     return FMU_OK;
 }
+
+/* The feed-forward law is algebraic: no internal state. */
+FmuStatus fmu_model_initialize(FmuValues *v, char *message, size_t size) {
+    (void)v, (void)message, (void)size;
+    return FMU_OK;
+}
+
+FmuStatus fmu_model_do_step(FmuValues *v, double h, char *message, size_t size) {
+    (void)v, (void)h, (void)message, (void)size;
+    return FMU_OK;
+}
