@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Iterator
 
 from emulator.description import VehicleDescription
+from emulator.effects import EffectSet
 from emulator.vehicle import Emulator
 from hil.client import VehicleClient
 from hil.server import VehicleServer
@@ -26,7 +27,8 @@ LOCKSTEP_SYNC_TIMEOUT = 1.0
 
 @contextlib.contextmanager
 def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: bool = False,
-                     gui: bool = False, record: str | Path | None = None) -> Iterator[VehicleClient]:
+                     gui: bool = False, record: str | Path | None = None,
+                     effects: EffectSet | None = None) -> Iterator[VehicleClient]:
     """Start the emulated vehicle on a private virtual bus and yield a connected client.
 
     Args:
@@ -35,9 +37,10 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
         lifted: chassis jacked up, wheels free (single-axis identification).
         gui: show PyBullet's GUI.
         record: BLF file for every frame on the bus.
+        effects: unmodelled effects on the ideal vehicle (``None``: the prototype as described).
     """
     bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
-    emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui)
+    emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui, effects=effects)
     server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT)
     try:
         server.start()

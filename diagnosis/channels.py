@@ -1,0 +1,219 @@
+"""The residual channels of a recorded campaign under a given model.
+
+Two kinds of channel, one per (campaign step, quantity):
+
+* **torque** channels — the generalized torque of the step's excited coordinate: measured
+  ``τ̂ = H_kᵀBu`` minus the model ``H_kᵀΘ̂p`` of the paper's (19), filtered exactly as for
+  identification (``ident.identify``). Rows in stiction (|ṡ| below ``ident.identify.VELOCITY_THRESHOLD``)
+  are kept for the regime breakdown but not fitted: static friction is indeterminate there.
+* **kinematic** channels — in the steering steps (mode 1, chassis at rest) every wheel of the steered
+  side rolls on a circle of radius a about its steering axis, so its encoder angle and the steering
+  sensor are tied by the rolling constraint (1): ``β_i − β_i(t₀) = (H₁)_{β_i}(α − α(t₀))``. The model
+  predicts a residual of zero up to a constant; wheel radius, backlash and coupling compliance break it.
+
+A channel carries everything a hypothesis needs to build its columns (``ChannelData.context``), so the
+hypotheses in :mod:`diagnosis.hypotheses` never re-read the run directory.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ident import filtering, kinematics, odometry
+from ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
+from ident.datasheet import DataSheet
+from ident.estimation import IdentificationResult
+from ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
+                            step_blocks, StepSignals)
+from ident.recording import Signals
+
+#: Coordinates of the lane change (validation step) that become torque channels.
+LANE_CHANGE_COORDINATES = ("x_ch",)
+#: Rows cut at both ends of every step: zero-phase filter edge effects (``filtering.padlen``).
+EDGE_ROWS = 60
+
+
+@dataclass
+class StepContext:
+    """Signals of one step shared by all its channels (arrays (N, …), SI).
+
+    Attributes:
+        st: filtered generalized signals (``ident.identify.StepSignals``).
+        sheet: the data sheet (geometry, i_G).
+        pose: (N, 3) odometry world pose x [m], y [m], γ [rad], integrated over the whole run.
+        H: (N, 9, n_k) H_k(α) of the step's mode.
+        alpha_dot_encoder: (N, 2) α̇ from the wheel encoders (mode 1 only, else the sensor's), rad/s
+            at the Coulomb cutoff — far finer than the 14-bit steering sensor.
+        keep: (N,) bool, rows away from the filter's edges.
+        p: (11,) the diagnosed model's parameters, order (18).
+    """
+
+    st: StepSignals
+    sheet: DataSheet
+    p: np.ndarray
+    pose: np.ndarray
+    H: np.ndarray
+    alpha_dot_encoder: np.ndarray
+    keep: np.ndarray
+
+    @property
+    def k(self) -> int:
+        return self.st.k
+
+    @property
+    def step(self) -> str:
+        return self.st.step
+
+
+@dataclass
+class ChannelData:
+    """One residual channel.
+
+    Attributes:
+        name: ``"<step>/<coordinate>"`` (torque) or ``"<step>/kinematic_<wheel>"``.
+        kind: ``"torque"`` or ``"kinematic"``.
+        unit: unit of ``y`` and of the residual (``N m``, ``N`` or ``rad`` wheel side).
+        index: column j of H_k (torque) or wheel index i (kinematic).
+        y: (n,) measured quantity: τ̂ − Θ̂₂p₂ (torque) or the rolling-constraint residual (kinematic).
+        base: (n, 10) regressor Θ̂₁ (torque) or (n, 0) (kinematic).
+        model: (n,) the given model's prediction Θ̂₁p̂₁ (torque) or 0 (kinematic).
+        velocity: (n,) generalized velocity of the row (rad/s or m/s).
+        acceleration: (n,) generalized acceleration.
+        fitted: (n,) bool, rows used for fitting (moving and away from the edges).
+        context: the step's :class:`StepContext`; rows are ``context.keep``-selected.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    index: int
+    y: np.ndarray
+    base: np.ndarray
+    model: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    fitted: np.ndarray
+    context: StepContext = field(repr=False)
+
+    @property
+    def residual(self) -> np.ndarray:
+        """(n,) y − model: what the given model leaves unexplained."""
+        return self.y - self.model
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.context.st.time[self.context.keep]
+
+    @property
+    def step(self) -> str:
+        return self.context.step
+
+    def rows(self, full: np.ndarray) -> np.ndarray:
+        """The channel's rows of a step-length (N, …) array."""
+        return np.asarray(full)[self.context.keep]
+
+
+def _alpha_dot_from_encoders(st: StepSignals, sheet: DataSheet) -> np.ndarray:
+    """Mode 1: α̇ per side by least squares over the side's two wheels, β̇_i = (H₁)_{β_i} α̇."""
+    if st.k != 1:
+        return st.qd_coulomb[:, 3:5]
+    H1 = kinematics.H(1, st.q[:, 3:5], sheet.geometry)[:, 5:9, :]  # (N, 4, 2)
+    beta_d = st.qd_coulomb[:, 5:9]
+    num = np.einsum("nik,ni->nk", H1, beta_d)
+    den = np.einsum("nik,nik->nk", H1, H1)
+    return num / den
+
+
+def step_context(sig: Signals, sheet: DataSheet, p: np.ndarray, pose: np.ndarray) -> StepContext:
+    """Filtered signals, H_k and pose of one step."""
+    st = generalized_signals(sig, sheet)
+    alpha = st.q[:, 3:5]
+    alpha_v = kinematics.alpha_v_from_alpha(alpha, sheet.geometry) if st.k == 2 else None
+    if st.k in (3, 4):
+        alpha = np.broadcast_to(kinematics.mode_alpha(st.k, sheet.geometry), alpha.shape)
+    H = kinematics.H(st.k, alpha, sheet.geometry, alpha_v=alpha_v)
+    keep = np.zeros(len(st.time), dtype=bool)
+    keep[EDGE_ROWS:len(keep) - EDGE_ROWS] = True
+    return StepContext(st, sheet, np.asarray(p, dtype=float), pose, H, _alpha_dot_from_encoders(st, sheet), keep)
+
+
+def _torque_channels(ctx: StepContext, coordinates, model: IdentificationResult) -> list[ChannelData]:
+    out = []
+    p = model.p
+    names = MODE_COORDINATES[ctx.k]
+    for block in step_blocks(ctx.st, ctx.sheet, coordinates):
+        coord = block.channel[0].split("/")[1] if not isinstance(block.channel, str) else \
+            block.channel.split("/")[1]
+        j = names.index(coord)
+        keep = ctx.keep
+        theta = block.Theta[keep]
+        y = block.tau[keep] - theta[:, 10] * p[10]
+        velocity = block.velocity[keep]
+        sdd = np.einsum("ni,ni->n", ctx.H[:, :, j], ctx.st.qdd)[keep] / np.maximum(
+            np.einsum("ni,ni->n", ctx.H[:, :, j], ctx.H[:, :, j])[keep], 1e-12)
+        threshold = VELOCITY_THRESHOLD.get(coord, VELOCITY_THRESHOLD["*"])
+        unit = "N" if coord in ("x_ch", "y_ch") else "N m"
+        out.append(ChannelData(f"{ctx.step}/{coord}", "torque", unit, j, y, theta[:, :10],
+                               theta[:, :10] @ p[:10], velocity, sdd,
+                               np.abs(velocity) > threshold, ctx))
+    return out
+
+
+def _kinematic_channels(ctx: StepContext, side: int) -> list[ChannelData]:
+    """Rolling-constraint residuals of the steered side's two wheels (mode 1)."""
+    st, keep = ctx.st, ctx.keep
+    alpha, beta = st.q[:, 3:5], st.q[:, 5:9]
+    H1 = ctx.H[:, 5:9, :]
+    out = []
+    for i in range(4):
+        if abs(H1[0, i, side]) < 1e-12:
+            continue
+        predicted = H1[:, i, side] * (alpha[:, side] - alpha[0, side])
+        y = (beta[:, i] - beta[0, i] - predicted)[keep]
+        velocity = st.qd[:, 3 + side][keep]
+        out.append(ChannelData(f"{ctx.step}/kinematic_{odometry_wheel(i)}", "kinematic", "rad", i, y,
+                               np.zeros((len(y), 0)), np.zeros(len(y)), velocity,
+                               st.qdd[:, 3 + side][keep], np.ones(len(y), dtype=bool), ctx))
+    return out
+
+
+def odometry_wheel(i: int) -> str:
+    return ("fl", "rl", "fr", "rr")[i]
+
+
+def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:
+    """(N, 3) odometry pose over the whole recording (paper (3)), from filtered α and β."""
+    ts = sheet.drive.cycle_time
+    alpha = filtering.zero_phase_lowpass(signals.alpha, ts)
+    beta = signals.motor_position / sheet.drive.i_G
+    pose, _ = odometry.odometry(signals.time, alpha, beta, sheet.geometry)
+    return pose
+
+
+def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
+             steps=None) -> list[ChannelData]:
+    """Every residual channel of the recording under ``model``.
+
+    Args:
+        signals: the run's recorded signals.
+        sheet: its data sheet.
+        model: the model to diagnose (identified on this run or another).
+        steps: step names to use (default: the four identification steps and the lane change when
+            recorded).
+    Returns:
+        Torque channels of every step and kinematic channels of the steering steps.
+    """
+    pose = run_pose(signals, sheet)
+    recorded = signals.steps()
+    wanted = steps or [s for s in (*IDENTIFICATION_STEPS, VALIDATION_STEP) if s in recorded]
+    out: list[ChannelData] = []
+    for step in wanted:
+        mask = signals.step == step
+        ctx = step_context(signals.select(mask), sheet, model.p, pose[mask])
+        coordinates = EXCITED.get(step, LANE_CHANGE_COORDINATES)
+        out += _torque_channels(ctx, coordinates, model)
+        if ctx.k == 1:
+            side = MODE_COORDINATES[1].index(coordinates[0])
+            out += _kinematic_channels(ctx, side)
+    return out

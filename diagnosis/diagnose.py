@@ -1,0 +1,206 @@
+"""The sim-to-real gap diagnosis: where the model and a recorded run differ, which named unmodelled
+effect explains it, and how far the residual shrinks on held-out data once it is added.
+
+Input is only what a vehicle puts on the bus (a run directory) and an identification result; the
+diagnosis is never told which effect, if any, is present.
+
+Procedure
+---------
+1. Residual channels of the data under the model (:mod:`diagnosis.channels`), broken down by step,
+   mode, regime, band and window with whiteness and cross-correlation tests (:mod:`diagnosis.where`).
+2. The base fit: the model's parameters may move within their uncertainty (prior, :mod:`diagnosis.fit`).
+3. Every hypothesis of :data:`diagnosis.hypotheses.LIBRARY` fitted as a nested extension; ranked by
+   the weighted held-out residual it removes.
+4. Forward selection: the best significant hypothesis is accepted, the others are re-tested with it
+   in the model; repeated while one is significant (so two effects at once are both named).
+5. Verdict: the accepted effects; else "no significant unmodelled effect" when the residual passes
+   the whiteness and cross-correlation tests, or "unexplained structure remains" with its location.
+6. Before/after in torque space and in forward simulation (:mod:`diagnosis.simulate`) on the held-out
+   rows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ident.estimation import P1_NAMES, IdentificationResult
+from ident.identify import correlation_lag, load_identification, load_run
+
+from . import fit as fitting
+from . import where as where_
+from .channels import ChannelData, channels
+from .hypotheses import LIBRARY, Hypothesis
+from .simulate import simulate_channel
+
+MAX_EFFECTS = 3
+VERDICT_NONE = "no significant unmodelled effect"
+VERDICT_UNEXPLAINED = "unexplained structure remains"
+
+
+def combine(fits: list[fitting.Fit], extra: Hypothesis | None = None) -> Hypothesis:
+    """One hypothesis made of accepted effects (fixed non-linear parameters) and optionally another."""
+    parts = [(f.hypothesis, f.nonlinear) for f in fits]
+
+    def columns(ch, nonlinear):
+        cols = []
+        any_col = False
+        for h, nl in parts + ([(extra, nonlinear)] if extra is not None else []):
+            c = h.columns(ch, nl)
+            if c is None:
+                c = np.zeros((len(ch.y), len(h.parameters)))
+            else:
+                any_col = True
+            cols.append(c)
+        return np.hstack(cols) if any_col else None
+
+    names = tuple(f"{h.label}:{p}" for h, _ in parts for p in h.parameters)
+    if extra is not None:
+        names += tuple(f"{extra.label}:{p}" for p in extra.parameters)
+    label = " + ".join([h.label for h, _ in parts] + ([extra.label] if extra else []))
+    last = extra if extra is not None else parts[-1][0]
+    q = len(last.parameters)
+
+    def magnitude(theta, cov, nonlinear, sheet):
+        return last.magnitude(theta[-q:], cov[-q:, -q:], nonlinear if extra is not None else parts[-1][1],
+                              sheet)
+
+    return Hypothesis(label, "", names, columns, grid=extra.grid if extra is not None else (None,),
+                      magnitude=magnitude, physical=lambda theta: last.physical(theta[-q:]))
+
+
+@dataclass
+class Diagnosis:
+    """Everything ``gap.json`` and the report show."""
+
+    where: dict
+    candidates: list[fitting.Candidate]
+    accepted: list[fitting.Candidate]
+    verdict: str
+    structured: list[str]
+    simulation: dict
+    holdout: str
+    model_source: str
+    data_source: str
+    base_delta_p: dict
+    channels: list[ChannelData] = field(repr=False, default_factory=list)
+    problems: tuple = field(repr=False, default=())
+    base_fit: fitting.Fit | None = field(repr=False, default=None)
+    final_fit: fitting.Fit | None = field(repr=False, default=None)
+
+
+def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
+    """Re-test the remaining hypotheses with the accepted effects in the model; return the best
+    significant one or None."""
+    base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache)
+    taken = {c.hypothesis.name for c in accepted}
+    best = None
+    for h in LIBRARY:
+        if h.name in taken:
+            continue
+        joint = combine(accepted_fits, h)
+        cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache)
+        if cand is None:
+            continue
+        q = len(h.parameters)
+        theta = cand.fit.theta[-q:]
+        cov = cand.fit.theta_cov[-q:, -q:]
+        physical = bool(h.physical(theta))
+        significant = cand.p_value < fitting.ALPHA and physical and \
+            cand.evaluation.shrink_affected >= fitting.MIN_SHRINK and cand.evaluation.shrink_affected_ci[0] > 0
+        if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
+            sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
+                                    cand.p_value, cand.evaluation, fitting.collinearity(fp, h, cand.fit.nonlinear),
+                                    physical, True, ["accepted in forward selection with "
+                                                     + ", ".join(c.hypothesis.label for c in accepted)])
+            best = (sub, cand.fit)
+    return best
+
+
+def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
+             *, simulate: bool = True, model_source: str = "") -> Diagnosis:
+    """Diagnose the gap between ``model`` and the run in ``data_dir``.
+
+    Args:
+        model: identified parameters (``identification.json`` of this or another run).
+        data_dir: run directory with the data.
+        holdout_dir: a second run used only for held-out evaluation; default: alternate 2 s windows
+            of ``data_dir`` are held out.
+        simulate: also compare forward simulations (a few seconds of CPU).
+    Raises:
+        RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
+    """
+    signals, sheet, _ = load_run(data_dir)
+    lag = correlation_lag(sheet.drive.cycle_time)
+    chans = channels(signals, sheet, model)
+    hold = None
+    if holdout_dir is not None:
+        h_signals, h_sheet, _ = load_run(holdout_dir)
+        hold = channels(h_signals, h_sheet, model)
+    fp, hp = fitting.make_problem(chans, lag, hold)
+    cache: dict = {}
+    base = fitting.solve(fp, model, None, None, lag, cache)
+    candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache)
+                              for h in LIBRARY) if c is not None]
+    candidates.sort(key=lambda c: c.evaluation.removed, reverse=True)
+    accepted, accepted_fits = [], []
+    first = next((c for c in candidates if c.significant), None)
+    if first is not None:
+        accepted.append(first)
+        accepted_fits.append(first.fit)
+        while len(accepted) < MAX_EFFECTS:
+            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache)
+            if more is None:
+                break
+            cand, joint_fit = more
+            accepted.append(cand)
+            q = len(cand.hypothesis.parameters)
+            accepted_fits.append(fitting.Fit(cand.hypothesis, joint_fit.nonlinear, joint_fit.theta[-q:],
+                                             joint_fit.theta_cov[-q:, -q:], joint_fit.delta_p,
+                                             joint_fit.offsets, joint_fit.rss, joint_fit.n_eff,
+                                             joint_fit.n_params))
+    where = where_.breakdown(chans, lag)
+    structured = where_.structured(where)
+    if accepted:
+        verdict = "unmodelled effect: " + ", ".join(c.hypothesis.label for c in accepted)
+    elif structured:
+        verdict = VERDICT_UNEXPLAINED
+    else:
+        verdict = VERDICT_NONE
+    final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
+    simulation = _simulation(hp, model, base, final, cache) if simulate else {}
+    base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
+                  for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
+    return Diagnosis(where, candidates, accepted, verdict, structured, simulation,
+                     "second run" if hold is not None else "alternate 2 s windows of the data",
+                     model_source, str(data_dir), base_delta, chans, (fp, hp), base, final)
+
+
+def _correction(problem: fitting.Problem, i: int, f: fitting.Fit, cache) -> np.ndarray:
+    ch = problem.channels[i]
+    rows = np.ones(len(ch.y), dtype=bool)
+    return ch.residual - fitting.predicted_residual(problem, i, f, rows, cache)
+
+
+def _simulation(problem: fitting.Problem, model: IdentificationResult, base: fitting.Fit,
+                final: fitting.Fit, cache) -> dict:
+    """Forward-simulation error per torque channel, base fit vs. with the accepted effects."""
+    out = {}
+    seen = set()
+    for i, ch in enumerate(problem.channels):
+        if ch.kind != "torque" or ch.name in seen:
+            continue
+        seen.add(ch.name)
+        before = simulate_channel(ch, model.p, _correction(problem, i, base, cache))
+        after = simulate_channel(ch, model.p, _correction(problem, i, final, cache))
+        out[ch.name] = {"before": before, "after": after,
+                        "shrink": 1 - after["rms"] / before["rms"] if before["rms"] > 0 else 0.0}
+    return out
+
+
+def diagnose_paths(model_path: str | Path, data_dir: str | Path, holdout_dir: str | Path | None = None,
+                   **kwargs) -> Diagnosis:
+    """:func:`diagnose` with the model read from ``identification.json`` (file or run directory)."""
+    return diagnose(load_identification(model_path), data_dir, holdout_dir,
+                    model_source=str(model_path), **kwargs)

@@ -1,0 +1,338 @@
+"""Fitting hypotheses as nested extensions of the identified model, with significance, confidence
+intervals, an identifiability check and held-out shrinkage.
+
+Estimation problem for hypothesis e (all channels stacked, rows weighted per channel)::
+
+    r_c = Θ̂₁,c δp + o_c + Φ_e,c θ_e + noise          (torque channel c: Θ̂₁ of (22); kinematic: offset o_c)
+    δp ~ N(0, Σ_prior)                                (the base parameters may move within their
+                                                        uncertainty, nothing more)
+
+r_c is what the given model leaves in channel c. Row weights are 1/(σ_c·√L): σ_c the channel's residual
+RMS under the base fit and L the rows over which the ω_g-filtered residuals stay correlated (so the data
+count as n/L independent rows against the prior). The base fit is the same problem without Φ_e.
+
+Significance is an F test of the weighted RSS reduction with n/L effective rows (profiled non-linear
+parameters count as one more degree of freedom); magnitudes' 95 % intervals come from the covariance
+of θ_e. Held-out data are never used for fitting: the rows of alternate time windows (or a second run),
+on which the shrinkage 1 − RMS(after)/RMS(before) is measured per channel, with a window-bootstrap
+interval.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ident.estimation import P1_NAMES, IdentificationResult
+
+from .channels import ChannelData
+from .hypotheses import Hypothesis, Magnitude
+
+#: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
+WINDOW = 2.0
+#: Significance level of the F test.
+ALPHA = 1e-3
+#: Smallest held-out shrinkage in the affected channel that counts as removing residual.
+MIN_SHRINK = 0.10
+#: Prior on the base parameters: σ = max(PRIOR_STD_FACTOR·σ_model, PRIOR_REL·|p|).
+PRIOR_STD_FACTOR = 3.0
+PRIOR_REL = 0.01
+#: Effect columns explained to more than this R² by the base columns are not separable from them.
+COLLINEAR_R2 = 0.98
+BOOTSTRAP = 400
+
+
+@dataclass
+class Problem:
+    """The stacked channels of one data set, with fit/held-out row selection and weights."""
+
+    channels: list[ChannelData]
+    fit_rows: list[np.ndarray]       # per channel, bool (n_c,)
+    holdout_rows: list[np.ndarray]   # per channel, bool (n_c,) (may refer to other channels)
+    weights: np.ndarray              # per channel, 1/(σ_c √L)
+    window_id: list[np.ndarray]      # per channel, int window index of each row
+
+
+def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
+    return np.floor(np.asarray(time) / window).astype(int)
+
+
+def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
+                 window: float = WINDOW) -> tuple[Problem, Problem]:
+    """The fitting problem and the held-out problem.
+
+    Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
+    row of ``channels`` is fitted and ``holdout`` is evaluated.
+    """
+    weights = []
+    fit_rows, hold_rows, wins = [], [], []
+    for ch in channels:
+        w = window_index(ch.time, window)
+        wins.append(w)
+        if holdout is None:
+            fit_rows.append(ch.fitted & (w % 2 == 0))
+            hold_rows.append(ch.fitted & (w % 2 == 1))
+        else:
+            fit_rows.append(ch.fitted.copy())
+        sel = fit_rows[-1]
+        sigma = float(np.sqrt(np.mean(ch.residual[sel] ** 2))) if sel.any() else 1.0
+        weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(lag)))
+    weights = np.array(weights)
+    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins)
+    if holdout is None:
+        return fit, Problem(channels, hold_rows, hold_rows, weights, wins)
+    by_name = {c.name: i for i, c in enumerate(channels)}
+    h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
+    h_rows = [c.fitted.copy() for c in holdout]
+    return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout])
+
+
+@dataclass
+class Fit:
+    """Solution of one (base or extended) problem."""
+
+    hypothesis: Hypothesis | None
+    nonlinear: object
+    theta: np.ndarray               # effect coefficients (q,)
+    theta_cov: np.ndarray           # (q, q)
+    delta_p: np.ndarray             # (10,)
+    offsets: dict                   # kinematic channel name → offset
+    rss: float                      # weighted, fit rows, including the prior term
+    n_eff: float
+    n_params: int
+
+
+def _columns(h: Hypothesis | None, ch: ChannelData, nonlinear) -> np.ndarray | None:
+    return None if h is None else h.columns(ch, nonlinear)
+
+
+def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, nonlinear, lag: int,
+          cache: dict | None = None) -> Fit | None:
+    """Least squares of the stacked weighted rows plus the prior rows. None if the hypothesis has no
+    column anywhere or its columns vanish."""
+    kin = [i for i, c in enumerate(problem.channels) if c.kind == "kinematic"]
+    q = len(h.parameters) if h is not None else 0
+    n_base = len(P1_NAMES)
+    n_cols = n_base + len(kin) + q
+    blocks_A, blocks_b = [], []
+    any_effect = False
+    for i, ch in enumerate(problem.channels):
+        rows = problem.fit_rows[i]
+        if not rows.any() or problem.weights[i] == 0:
+            continue
+        A = np.zeros((int(rows.sum()), n_cols))
+        if ch.kind == "torque":
+            A[:, :n_base] = ch.base[rows]
+        else:
+            A[:, n_base + kin.index(i)] = 1.0
+        if q:
+            key = (h.label, nonlinear, id(ch))
+            cols = cache.get(key) if cache is not None else None
+            if cols is None:
+                cols = _columns(h, ch, nonlinear)
+                if cache is not None:
+                    cache[key] = cols
+            if cols is not None:
+                A[:, -q:] = cols[rows]
+                any_effect = any_effect or bool(np.any(cols[rows] != 0))
+        blocks_A.append(A * problem.weights[i])
+        blocks_b.append(ch.residual[rows] * problem.weights[i])
+    if q and not any_effect:
+        return None
+    prior_std = np.maximum(PRIOR_STD_FACTOR * model.std_vector, PRIOR_REL * np.abs(model.p1))
+    P = np.zeros((n_base, n_cols))
+    P[:, :n_base] = np.diag(1.0 / prior_std)
+    A = np.vstack(blocks_A + [P])
+    b = np.concatenate(blocks_b + [np.zeros(n_base)])
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    x, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
+    x = x / scale
+    rss = float(np.sum((b - A @ x) ** 2))
+    n_eff = sum(len(blk) for blk in blocks_b) / lag
+    dof = max(n_eff - n_cols, 1.0)
+    s2 = max(rss / dof, 1.0)
+    cov = np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale) * s2
+    offsets = {problem.channels[i].name: float(x[n_base + j]) for j, i in enumerate(kin)}
+    theta = x[n_cols - q:] if q else np.zeros(0)
+    theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
+    return Fit(h, nonlinear, theta, theta_cov, x[:n_base], offsets, rss, n_eff, n_cols)
+
+
+def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
+                       cache: dict | None = None) -> np.ndarray:
+    """What ``fit`` leaves of channel i's residual on ``rows``. Kinematic channels' offsets are re-set
+    to the mean over those rows (the constant of integration is not a property of the vehicle)."""
+    ch = problem.channels[i]
+    r = ch.residual[rows].copy()
+    if ch.kind == "torque":
+        r -= ch.base[rows] @ fit.delta_p
+    if fit.hypothesis is not None and len(fit.theta):
+        key = (fit.hypothesis.label, fit.nonlinear, id(ch))
+        cols = cache.get(key) if cache is not None else None
+        if cols is None:
+            cols = fit.hypothesis.columns(ch, fit.nonlinear)
+        if cols is not None:
+            r -= cols[rows] @ fit.theta
+    if ch.kind == "kinematic" and len(r):
+        r -= r.mean()
+    return r
+
+
+@dataclass
+class ChannelShrink:
+    name: str
+    rms_before: float
+    rms_after: float
+
+    @property
+    def shrink(self) -> float:
+        return 1.0 - self.rms_after / self.rms_before if self.rms_before > 0 else 0.0
+
+
+@dataclass
+class Evaluation:
+    """Held-out comparison of the base fit and an extended fit."""
+
+    channels: list[ChannelShrink]
+    weighted_rss_before: float
+    weighted_rss_after: float
+    affected: str
+    shrink_affected: float
+    shrink_affected_ci: tuple[float, float]
+
+    @property
+    def removed(self) -> float:
+        """Weighted held-out residual removed (RSS units of the noise; the ranking score)."""
+        return self.weighted_rss_before - self.weighted_rss_after
+
+
+def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
+             rng: np.random.Generator | None = None) -> Evaluation:
+    """Held-out residual before (base fit) and after (extended fit), per channel, with a
+    window-bootstrap 95 % interval for the affected channel's shrinkage."""
+    rng = rng or np.random.default_rng(0)
+    out = []
+    per_window = {}
+    rss_b = rss_a = 0.0
+    for i, ch in enumerate(problem.channels):
+        rows = problem.holdout_rows[i]
+        if not rows.any():
+            continue
+        before = predicted_residual(problem, i, base, rows, cache)
+        after = predicted_residual(problem, i, ext, rows, cache)
+        w = problem.weights[i]
+        rss_b += float(np.sum((w * before) ** 2))
+        rss_a += float(np.sum((w * after) ** 2))
+        out.append(ChannelShrink(ch.name, float(np.sqrt(np.mean(before**2))),
+                                 float(np.sqrt(np.mean(after**2)))))
+        wins = problem.window_id[i][rows]
+        per_window[ch.name] = (wins, before, after)
+    if not out:
+        return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
+    affected = max(out, key=lambda c: c.rms_before**2 - c.rms_after**2)
+    wins, before, after = per_window[affected.name]
+    ids = np.unique(wins)
+    sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])
+    sa = np.array([np.sum(after[wins == k] ** 2) for k in ids])
+    boot = []
+    for _ in range(BOOTSTRAP):
+        pick = rng.integers(0, len(ids), len(ids))
+        boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
+    lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
+    return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)))
+
+
+def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
+    """p-value of the RSS reduction (F test with n/L effective rows)."""
+    q = len(ext.theta) + extra_dof
+    dof = max(ext.n_eff - ext.n_params - extra_dof, 1.0)
+    if ext.rss <= 0:
+        return 0.0
+    F = max(base.rss - ext.rss, 0.0) / q / (ext.rss / dof)
+    return float(stats.f.sf(F, q, dof))
+
+
+def collinearity(problem: Problem, h: Hypothesis, nonlinear, cache: dict | None = None) -> dict:
+    """R² of each effect column regressed on the base columns over the fit rows (torque channels), and
+    the base parameters most correlated with it."""
+    cols, base = [], []
+    for i, ch in enumerate(problem.channels):
+        rows = problem.fit_rows[i]
+        if ch.kind != "torque" or not rows.any():
+            continue
+        c = (cache or {}).get((h.label, nonlinear, id(ch)))
+        if c is None:
+            c = h.columns(ch, nonlinear)
+        if c is None:
+            continue
+        cols.append(c[rows] * problem.weights[i])
+        base.append(ch.base[rows] * problem.weights[i])
+    if not cols:
+        return {"r2": 0.0, "correlated_with": [], "separable": True}
+    C, B = np.vstack(cols), np.vstack(base)
+    keep = np.linalg.norm(B, axis=0) > 0
+    B = B[:, keep]
+    names = [n for n, k in zip(P1_NAMES, keep) if k]
+    r2 = []
+    for j in range(C.shape[1]):
+        c = C[:, j]
+        if not np.any(c):
+            continue
+        x, *_ = np.linalg.lstsq(B, c, rcond=None)
+        r2.append(1 - np.sum((c - B @ x) ** 2) / np.sum(c**2))
+    corr = []
+    for j in range(C.shape[1]):
+        for k, n in enumerate(names):
+            denom = np.linalg.norm(C[:, j]) * np.linalg.norm(B[:, k])
+            if denom > 0 and abs(C[:, j] @ B[:, k]) / denom > 0.9:
+                corr.append(n)
+    worst = float(max(r2)) if r2 else 0.0
+    return {"r2": worst, "correlated_with": sorted(set(corr)), "separable": worst < COLLINEAR_R2}
+
+
+@dataclass
+class Candidate:
+    """One hypothesis' fitted result."""
+
+    hypothesis: Hypothesis
+    fit: Fit
+    magnitude: Magnitude
+    p_value: float
+    evaluation: Evaluation
+    identifiability: dict
+    physical: bool
+    significant: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return self.hypothesis.name
+
+
+def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
+                   h: Hypothesis, base: Fit, lag: int, sheet, cache: dict) -> Candidate | None:
+    """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows."""
+    best = None
+    for nonlinear in h.grid:
+        ext = solve(fit_problem, model, h, nonlinear, lag, cache)
+        if ext is not None and (best is None or ext.rss < best.rss):
+            best = ext
+    if best is None:
+        return None
+    p_value = f_test(base, best, extra_dof=0 if h.grid == (None,) else 1)
+    evaluation = evaluate(hold_problem, base, best, cache)
+    magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
+    ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
+    physical = bool(h.physical(best.theta))
+    cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical)
+    cand.significant = bool(p_value < ALPHA and physical and evaluation.shrink_affected >= MIN_SHRINK
+                            and evaluation.shrink_affected_ci[0] > 0)
+    if not physical:
+        cand.notes.append("fitted sign or size is physically impossible for this effect")
+    if not ident_check["separable"]:
+        cand.notes.append("columns nearly collinear with " + ", ".join(ident_check["correlated_with"])
+                          + ": separable only through the base model's uncertainty")
+    return cand

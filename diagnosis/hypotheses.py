@@ -1,0 +1,398 @@
+"""The library of named physical hypotheses: unmodelled effects as nested extensions of the paper's
+model.
+
+Each hypothesis adds columns Φ_e to a channel so that the residual of the base model is explained as
+``r ≈ Θ̂₁ δp + Φ_e θ_e`` (θ_e = 0 is the paper's model). Columns are built from what the vehicle puts
+on the bus (recorded torques, encoder and steering-sensor angles, odometry) and the base model's
+parameters — never from the emulator. Non-linear parameters (a delay, a Stribeck velocity) are
+profiled over a grid; everything else enters linearly.
+
+Sign convention: the residual is τ̂ − H_kᵀΘ̂p (measured generalized input minus the model's need), so a
+resisting load that the model lacks gives a positive column.
+
+Hypotheses (``Hypothesis.name`` equals the effect name the emulator's effects file uses):
+
+=========================  ==============================================  =====================
+name                       columns                                         magnitude reported
+=========================  ==============================================  =====================
+payload                    Θ̂_{m_ch}, Θ̂_{C_ch}, centre-of-mass offset       Δm [kg]
+incline                    m_ch·g along world x, y in the chassis frame   angle [rad]
+stribeck (wheels/steering) d_c·exp(−(v/v_s)²)·tanh(v/ε), v_s profiled      breakaway ratio − 1
+rolling_resistance         (m_ch g r / 4)·tanh(β̇_i/ε) per wheel           c_rr [-]
+actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled           T_d [s]
+torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
+wheel_radius               (kinematic) predicted rolling angle              r_nominal/r − 1 [-]
+backlash                   (kinematic) ½·sign(u_i)                          gap [rad, wheel side]
+steering_compliance        (kinematic, rear wheels) coupling torque         1/stiffness [rad/(N m)]
+tire_slip                  lateral-force drag in steered driving            1/C_α [rad/N]
+heavy_steering_units       exact point masses at the wheel centres          m_w [kg]
+=========================  ==============================================  =====================
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ident import filtering
+from ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
+
+from .channels import ChannelData
+
+GRAVITY = 9.81
+EPS_SIGN = 0.01  # rad/s, tanh smoothing of friction signs (the model's ε)
+
+
+@dataclass(frozen=True)
+class Magnitude:
+    """A hypothesis' physical size: value, 95 % interval, unit and what it is."""
+
+    value: float
+    ci: tuple[float, float]
+    unit: str
+    quantity: str
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One named unmodelled effect.
+
+    Attributes:
+        name: effect name (``payload``, ``incline`` …).
+        variant: which instance (``"drive fl"``, ``"joints=wheels"``) or ``""``.
+        parameters: names of the linear coefficients θ.
+        columns: ``(channel, nonlinear) -> (n, len(parameters))`` or None when the hypothesis does not
+            act on that channel.
+        grid: values of the profiled non-linear parameter (``(None,)`` if none).
+        magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
+        physical: ``θ -> bool``: whether the fitted sign is physically possible.
+        absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
+    """
+
+    name: str
+    variant: str
+    parameters: tuple[str, ...]
+    columns: Callable[[ChannelData, object], np.ndarray | None]
+    grid: tuple = (None,)
+    magnitude: Callable = None
+    physical: Callable[[np.ndarray], bool] = lambda theta: True
+    absorbed_by: tuple[str, ...] = ()
+    nonlinear_unit: str = ""
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.variant})" if self.variant else self.name
+
+
+# --- helpers ---------------------------------------------------------------------------------------
+def _project(ch: ChannelData, Q: np.ndarray, smooth: bool = False) -> np.ndarray:
+    """Generalized force Q (N, 9) of the step → the channel's rows H_k[:, :, j]ᵀQ; ``smooth``: low-pass
+    at ω_g first (parallel filtering of non-smooth columns, as ``ident.identify`` does)."""
+    ctx = ch.context
+    if smooth:
+        Q = filtering.zero_phase_lowpass(Q, ctx.st.cycle_time, ctx.st.omega_g)
+    return ch.rows(np.einsum("ni,ni->n", ctx.H[:, :, ch.index], Q))
+
+
+def _torque_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "torque" else None
+    return wrapped
+
+
+def _kinematic_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "kinematic" else None
+    return wrapped
+
+
+def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
+    return (scale * (value - 1.96 * std), scale * (value + 1.96 * std))
+
+
+def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):
+    def magnitude(theta, cov, nonlinear, sheet):
+        v, s = float(theta[index]), float(math.sqrt(max(cov[index, index], 0.0)))
+        return Magnitude(scale * v, _ci(v, s, scale), unit, quantity)
+    return magnitude
+
+
+def _input_torque(ch: ChannelData) -> np.ndarray:
+    """(N, 9) B u with the step's filtered, aligned motor torques (N m wheel side on the β rows)."""
+    st = ch.context.st
+    Bu = np.zeros((len(st.time), 9))
+    Bu[:, 5:9] = ch.context.sheet.drive.i_G * st.motor_torque
+    return Bu
+
+
+# --- payload ---------------------------------------------------------------------------------------
+@_torque_only
+def _payload_columns(ch: ChannelData, _):
+    st = ch.context.st
+    v, a = st.qd[:, :3], st.qdd[:, :3]
+    w, wd = v[:, 2], a[:, 2]
+    # Generalized chassis force of a mass with centre (x_c, y_c) in the chassis frame, per unit
+    # first moment s = m·(x_c, y_c), beyond the model's diag(m, m, C) (Newton-Euler, body frame).
+    Qx = np.zeros((len(w), 9))
+    Qx[:, 0], Qx[:, 1], Qx[:, 2] = -w**2, wd, a[:, 1] + w * v[:, 0]
+    Qy = np.zeros((len(w), 9))
+    Qy[:, 0], Qy[:, 1], Qy[:, 2] = -wd, -w**2, -(a[:, 0] - w * v[:, 1])
+    mass, inertia = ch.base[:, 6], ch.base[:, 7]
+    return np.column_stack([mass, inertia, _project(ch, Qx), _project(ch, Qy)])
+
+
+PAYLOAD = Hypothesis(
+    "payload", "", ("delta_m", "delta_C", "m_x_c", "m_y_c"), _payload_columns,
+    magnitude=_linear_magnitude(0, "kg", "added mass"),
+    physical=lambda t: t[0] > 0 and t[1] > -1e-9,
+    absorbed_by=("m_ch", "C_ch"))
+
+
+# --- incline ---------------------------------------------------------------------------------------
+@_torque_only
+def _incline_columns(ch: ChannelData, _):
+    ctx = ch.context
+    gamma = ctx.pose[:, 2]
+    m_g = ctx.p[6] * GRAVITY
+    Qx = np.zeros((len(gamma), 9))
+    Qy = np.zeros((len(gamma), 9))
+    # World x and y unit vectors in the chassis frame (the downhill force's direction is fitted).
+    Qx[:, 0], Qx[:, 1] = np.cos(gamma), -np.sin(gamma)
+    Qy[:, 0], Qy[:, 1] = np.sin(gamma), np.cos(gamma)
+    return m_g * np.column_stack([_project(ch, Qx), _project(ch, Qy)])
+
+
+def _incline_magnitude(theta, cov, nonlinear, sheet):
+    s = float(np.hypot(theta[0], theta[1]))
+    grad = np.array(theta[:2]) / max(s, 1e-12)
+    std = float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
+    lo, hi = max(s - 1.96 * std, 0.0), min(s + 1.96 * std, 1.0)
+    return Magnitude(math.asin(min(s, 1.0)), (math.asin(lo), math.asin(hi)), "rad", "floor inclination")
+
+
+INCLINE = Hypothesis("incline", "", ("sin_x", "sin_y"), _incline_columns, magnitude=_incline_magnitude)
+
+
+# --- Stribeck ----------------------------------------------------------------------------------------
+def _stribeck(v, v_s):
+    return np.exp(-(v / v_s) ** 2) * np.tanh(v / EPS_SIGN)
+
+
+STRIBECK_VELOCITIES = (0.02, 0.05, 0.1, 0.2, 0.4)  # rad/s, joint side
+
+
+@_torque_only
+def _stribeck_wheel_columns(ch: ChannelData, v_s):
+    st = ch.context.st
+    Q = np.zeros((len(st.time), 9))
+    Q[:, 5:9] = ch.context.p[9] * _stribeck(st.qd_coulomb[:, 5:9], v_s)
+    return _project(ch, Q, smooth=True)[:, None]
+
+
+@_torque_only
+def _stribeck_steering_columns(ch: ChannelData, v_s):
+    ctx = ch.context
+    Q = np.zeros((len(ctx.st.time), 9))
+    Q[:, 3] = ctx.p[2] * _stribeck(ctx.alpha_dot_encoder[:, 0], v_s)
+    Q[:, 4] = ctx.p[5] * _stribeck(ctx.alpha_dot_encoder[:, 1], v_s)
+    return _project(ch, Q, smooth=True)[:, None]
+
+
+STRIBECK_WHEELS = Hypothesis(
+    "stribeck", "joints=wheels", ("breakaway_excess",), _stribeck_wheel_columns, STRIBECK_VELOCITIES,
+    magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (wheel joints)"),
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)")
+STRIBECK_STEERING = Hypothesis(
+    "stribeck", "joints=steering", ("breakaway_excess",), _stribeck_steering_columns,
+    STRIBECK_VELOCITIES, magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (steering joints)"),
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)")
+
+
+# --- rolling resistance ------------------------------------------------------------------------------
+@_torque_only
+def _rolling_columns(ch: ChannelData, _):
+    st, sheet = ch.context.st, ch.context.sheet
+    load = ch.context.p[6] * GRAVITY / 4
+    Q = np.zeros((len(st.time), 9))
+    Q[:, 5:9] = load * sheet.geometry.r * np.tanh(st.qd_coulomb[:, 5:9] / EPS_SIGN)
+    return _project(ch, Q, smooth=True)[:, None]
+
+
+ROLLING_RESISTANCE = Hypothesis(
+    "rolling_resistance", "", ("c_rr",), _rolling_columns,
+    magnitude=_linear_magnitude(0, "-", "rolling-resistance coefficient"),
+    physical=lambda t: t[0] > 0, absorbed_by=("d_cw",))
+
+
+# --- actuator delay ----------------------------------------------------------------------------------
+DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
+
+
+@_torque_only
+def _delay_columns(ch: ChannelData, cycles):
+    Bu = _input_torque(ch)
+    delayed = np.vstack([np.repeat(Bu[:1], cycles, axis=0), Bu[:-cycles]])
+    return _project(ch, Bu - delayed)[:, None]
+
+
+def _delay_magnitude(theta, cov, cycles, sheet):
+    ts = sheet.drive.cycle_time
+    return Magnitude(cycles * ts, (max(cycles - 1, 0) * ts, (cycles + 1) * ts), "s",
+                     "delay commanded → applied torque (grid ±1 cycle)")
+
+
+ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), _delay_columns, DELAY_STEPS,
+                            magnitude=_delay_magnitude, physical=lambda t: 0.5 < t[0] < 1.5,
+                            nonlinear_unit="cycles")
+
+
+# --- torque constant of one drive ------------------------------------------------------------------
+def _torque_constant(j: int):
+    @_torque_only
+    def columns(ch: ChannelData, _):
+        Bu = _input_torque(ch)
+        Q = np.zeros_like(Bu)
+        Q[:, 5 + j] = Bu[:, 5 + j]
+        return -_project(ch, Q)[:, None]
+    return columns
+
+
+TORQUE_CONSTANT = tuple(
+    Hypothesis("torque_constant_error", f"drive {w}", ("factor_minus_one",), _torque_constant(j),
+               magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"))
+    for j, w in enumerate(("fl", "rl", "fr", "rr")))
+
+
+# --- kinematic hypotheses ----------------------------------------------------------------------------
+@_kinematic_only
+def _radius_columns(ch: ChannelData, _):
+    st, side = ch.context.st, SIDE_INDEX[ch.index]
+    H1 = ch.context.H[:, 5 + ch.index, side]
+    return ch.rows(H1 * (st.q[:, 3 + side] - st.q[0, 3 + side]))[:, None]
+
+
+def _radius_magnitude(theta, cov, nonlinear, sheet):
+    v, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+    r = sheet.geometry.r
+    return Magnitude(r / (1 + v), (r / (1 + v + 1.96 * s), r / (1 + v - 1.96 * s)), "m",
+                     "effective wheel radius")
+
+
+WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_columns,
+                          magnitude=_radius_magnitude)
+
+BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
+
+
+@_kinematic_only
+def _backlash_columns(ch: ChannelData, _):
+    u = ch.context.st.motor_torque[:, ch.index]
+    return ch.rows(0.5 * np.tanh(u / BACKLASH_TORQUE_SCALE))[:, None]
+
+
+BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
+                      magnitude=_linear_magnitude(0, "rad", "gear backlash (wheel side)"),
+                      physical=lambda t: t[0] > 0)
+
+
+@_kinematic_only
+def _compliance_columns(ch: ChannelData, _):
+    i = ch.index
+    if FRONT_SIGN[i] > 0:
+        return ch.rows(np.zeros(len(ch.context.st.time)))[:, None]
+    ctx, side = ch.context, SIDE_INDEX[ch.index]
+    front = i - 1
+    H1 = ctx.H[:, 5:9, side]
+    i_G = ctx.sheet.drive.i_G
+    u = ctx.st.motor_torque
+    # Torque the coupling carries to the rear unit ≈ half the side's difference of the two drives'
+    # steering torques; the rear joint deflects by it / stiffness and its wheel rolls with it.
+    coupling = 0.5 * i_G * (H1[:, front] * u[:, front] - H1[:, i] * u[:, i])
+    return ch.rows(H1[:, i] * coupling * FRONT_SIGN[i])[:, None]
+
+
+STEERING_COMPLIANCE = Hypothesis(
+    "steering_compliance", "", ("compliance",), _compliance_columns,
+    magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k"))
+
+
+# --- tyre slip ---------------------------------------------------------------------------------------
+@_torque_only
+def _slip_columns(ch: ChannelData, _):
+    if ch.context.k != 2:
+        return np.zeros((len(ch.y), 1))
+    st = ch.context.st
+    v = st.qd[:, :3]
+    # Lateral tyre forces ≈ share of the chassis' centripetal force m·v·ω; a slip angle F/C_α makes
+    # each wheel dissipate F²/C_α·|v| — a drag ∝ (m v ω)² along the path.
+    lateral = ch.context.p[6] * v[:, 0] * v[:, 2] / 4
+    Q = np.zeros((len(v), 9))
+    Q[:, 0] = 4 * lateral**2 * np.tanh(v[:, 0] / 0.01)
+    return _project(ch, Q)[:, None]
+
+
+TIRE_SLIP = Hypothesis("tire_slip", "", ("inverse_cornering_stiffness",), _slip_columns,
+                       magnitude=_linear_magnitude(0, "rad/N", "1/C_α per wheel"),
+                       physical=lambda t: t[0] > 0)
+
+
+# --- heavy steering units ------------------------------------------------------------------------------
+@_torque_only
+def _heavy_columns(ch: ChannelData, _):
+    ctx = ch.context
+    st, g = ctx.st, ctx.sheet.geometry
+    n = len(st.time)
+    v, acc = st.qd[:, :3], st.qdd[:, :3]
+    w, wd = v[:, 2], acc[:, 2]
+    alpha, alpha_d, alpha_dd = st.q[:, 3:5], st.qd[:, 3:5], st.qdd[:, 3:5]
+    if ctx.k in (3, 4):
+        alpha = ctx.H[:, 3:5, 0] * 0 + _mode_alpha(ctx)
+        alpha_d = alpha_dd = np.zeros_like(alpha)
+    Q = np.zeros((n, 9))
+    lumped = np.zeros((n, 9))
+    for i in range(4):
+        s, sigma, side = SIDE_SIGN[i], FRONT_SIGN[i], SIDE_INDEX[i]
+        P = np.array([sigma * g.l / 2, s * g.b / 2])
+        phi, phid, phidd = sigma * alpha[:, side], sigma * alpha_d[:, side], sigma * alpha_dd[:, side]
+        e = np.column_stack([-np.sin(phi), np.cos(phi)])
+        de = np.column_stack([-np.cos(phi), -np.sin(phi)])  # d e / d phi
+        c = P + s * g.a * e
+        cd = s * g.a * de * phid[:, None]
+        cdd = s * g.a * (de * phidd[:, None] - e * (phid**2)[:, None])
+        # Inertial acceleration of the wheel centre, chassis-frame components.
+        A = (acc[:, :2] + np.column_stack([-w * v[:, 1], w * v[:, 0]])
+             + np.column_stack([-wd * c[:, 1], wd * c[:, 0]]) - (w**2)[:, None] * c
+             + 2 * np.column_stack([-w * cd[:, 1], w * cd[:, 0]]) + cdd)
+        Q[:, 0] += A[:, 0]
+        Q[:, 1] += A[:, 1]
+        Q[:, 2] += -c[:, 1] * A[:, 0] + c[:, 0] * A[:, 1]
+        Q[:, 3 + side] += sigma * s * g.a * np.einsum("nj,nj->n", de, A)
+        # What the lumped model already holds for this mass: m_ch, C_ch + C_side at α = 0, C_side.
+        c0 = P + s * g.a * np.array([0.0, 1.0])
+        lumped[:, 0] += acc[:, 0] - w * v[:, 1]
+        lumped[:, 1] += acc[:, 1] + w * v[:, 0]
+        lumped[:, 2] += float(c0 @ c0) * wd
+        lumped[:, 3 + side] += g.a**2 * alpha_dd[:, side]
+    return _project(ch, Q - lumped)[:, None]
+
+
+def _mode_alpha(ctx):
+    from ident import kinematics
+    return kinematics.mode_alpha(ctx.k, ctx.sheet.geometry)[None, :]
+
+
+HEAVY_STEERING_UNITS = Hypothesis(
+    "heavy_steering_units", "", ("wheel_mass",), _heavy_columns,
+    magnitude=_linear_magnitude(0, "kg", "mass per steering unit at the wheel centre"),
+    physical=lambda t: t[0] > 0)
+
+
+LIBRARY: tuple[Hypothesis, ...] = (
+    PAYLOAD, INCLINE, STRIBECK_WHEELS, STRIBECK_STEERING, ROLLING_RESISTANCE, ACTUATOR_DELAY,
+    *TORQUE_CONSTANT, WHEEL_RADIUS, BACKLASH, STEERING_COMPLIANCE, TIRE_SLIP, HEAVY_STEERING_UNITS,
+)
+"""Every hypothesis the diagnosis tests."""
+
+__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "GRAVITY"]

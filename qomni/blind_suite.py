@@ -1,0 +1,263 @@
+"""Blind check of the gap diagnosis: campaigns on emulators with one known effect (or none, or two), the
+diagnosis told nothing but the reference model and the data, scored against what was switched on.
+
+Protocol
+--------
+* A reference campaign on the **ideal** emulator (no effect) gives the model: identified parameters
+  that hold where the paper's assumptions hold.
+* Every case runs a campaign on the ideal emulator plus its effects (effects file written per case,
+  seed per case) and ``qomni diagnose --model REFERENCE --data CASE``.
+* Scores: top-1 (the first accepted effect is the one switched on), false positives (accepted effects
+  that were not switched on; any accepted effect on an ideal case), the held-out shrinkage of the true
+  effect's hypothesis in its affected channel, and for two-effect cases whether both are named.
+
+Cases are independent processes (``concurrent.futures``), or Ray tasks on an existing cluster
+(``ray_address``; ``pip install 'qomni[ray]'``). This module is part of the composition root: it writes
+effects files and knows the truth to score against; the diagnosis itself never sees either.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+#: Realistic magnitudes per effect: (low, high). Each entry is one effects-file table.
+MAGNITUDES: dict[str, tuple[dict, dict]] = {
+    "payload": ({"mass": 150.0, "com_offset": [0.25, 0.15], "height": 0.3},
+                {"mass": 300.0, "com_offset": [0.25, 0.15], "height": 0.3}),
+    "incline": ({"angle": 0.01}, {"angle": 0.02}),
+    "stribeck_wheels": ({"joints": "wheels", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
+                        {"joints": "wheels", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
+    "stribeck_steering": ({"joints": "steering", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
+                          {"joints": "steering", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
+    "rolling_resistance": ({"c_rr": 0.008}, {"c_rr": 0.015}),
+    "actuator_delay": ({"delay": 0.004}, {"delay": 0.010}),
+    "torque_constant_error": ({"factor": 0.92}, {"factor": 0.88}),
+    "wheel_radius": ({"radius": 0.098}, {"radius": 0.096}),
+    "backlash": ({"gap": 0.005}, {"gap": 0.01}),
+    "steering_compliance": ({"stiffness": 2000.0}, {"stiffness": 800.0}),
+    "tire_slip": ({"cornering_stiffness": 8000.0}, {"cornering_stiffness": 4000.0}),
+    "heavy_steering_units": ({"steering_unit_mass": 20.0, "wheel_mass": 8.0},
+                             {"steering_unit_mass": 30.0, "wheel_mass": 12.0}),
+}
+#: Effects-file table name of each suite entry (two Stribeck variants share one effect).
+TABLE = {"stribeck_wheels": "stribeck", "stribeck_steering": "stribeck"}
+DRIVES = ("fl", "rl", "fr", "rr")
+#: Pairs run in the two-effect cases.
+PAIRS = (("incline", "wheel_radius"), ("actuator_delay", "backlash"))
+
+
+def effect_name(entry: str) -> str:
+    """The effect name the diagnosis should report for a suite entry."""
+    return TABLE.get(entry, entry)
+
+
+def seeded_table(entry: str, magnitude: int, seed: int) -> dict:
+    """The effects-file table for an entry at magnitude index 0/1; per-seed choices (an incline's
+    direction, the faulty drive) vary with the seed."""
+    table = dict(MAGNITUDES[entry][magnitude])
+    if entry == "incline":
+        # Any direction except within 25° of purely lateral to the campaign's driving direction: a
+        # slope perpendicular to every motion of the campaign does no work on it and is invisible.
+        heading = (0.9 * ((seed * 0.618034) % 1.0) - 0.45) * math.pi + (math.pi if seed % 2 else 0.0)
+        table["uphill_heading"] = heading
+    if entry == "torque_constant_error":
+        table["drive"] = DRIVES[seed % 4]
+    return table
+
+
+def effects_toml(tables: dict[str, dict]) -> str:
+    lines = []
+    for name, table in tables.items():
+        lines.append(f"[{name}]")
+        for k, v in table.items():
+            lines.append(f"{k} = {json.dumps(v)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+@dataclass
+class Case:
+    """One campaign of the suite."""
+
+    name: str
+    effects: dict[str, dict]          # effects-file tables
+    truth: list[str]                  # effect names the diagnosis should report
+    seed: int
+    magnitude: str = ""
+
+
+@dataclass
+class CaseResult:
+    case: Case
+    verdict: str = ""
+    accepted: list[str] = field(default_factory=list)
+    ranking: list[str] = field(default_factory=list)
+    true_shrink: dict = field(default_factory=dict)
+    wall_time: float = 0.0
+    error: str = ""
+
+    @property
+    def top1(self) -> bool:
+        if not self.case.truth:
+            return not self.accepted
+        return bool(self.accepted) and self.accepted[0] in self.case.truth
+
+    @property
+    def all_named(self) -> bool:
+        return set(self.case.truth) <= set(self.accepted)
+
+    @property
+    def false_positives(self) -> list[str]:
+        return [a for a in self.accepted if a not in self.case.truth]
+
+
+def cases(seeds: int = 5, magnitudes: tuple[int, ...] = (0, 1), entries=None, ideal: int | None = None,
+          pairs: bool = True, first_seed: int = 100) -> list[Case]:
+    """The suite: every entry × magnitudes × seeds, ``ideal`` ideal cases (default: ``seeds``) and the
+    two-effect pairs (high magnitude, one seed each)."""
+    out = []
+    for entry in entries or MAGNITUDES:
+        for m in magnitudes:
+            for s in range(seeds):
+                seed = first_seed + 17 * s + m
+                out.append(Case(f"{entry}_{'low' if m == 0 else 'high'}_s{seed}",
+                                {effect_name(entry): seeded_table(entry, m, seed)},
+                                [effect_name(entry)], seed, "low" if m == 0 else "high"))
+    for s in range(seeds if ideal is None else ideal):
+        out.append(Case(f"ideal_s{first_seed + s}", {}, [], first_seed + s))
+    if pairs:
+        for i, (a, b) in enumerate(PAIRS):
+            seed = first_seed + 500 + i
+            out.append(Case(f"{a}+{b}_s{seed}", {effect_name(a): seeded_table(a, 1, seed),
+                                                 effect_name(b): seeded_table(b, 1, seed)},
+                            [effect_name(a), effect_name(b)], seed, "high"))
+    return out
+
+
+def run_campaign(out: Path, effects: dict, seed: int, quick: bool) -> None:
+    """One campaign on the ideal emulator plus ``effects``, as ``qomni campaign`` runs it."""
+    out.mkdir(parents=True, exist_ok=True)
+    fx = out.parent / f"{out.name}.effects.toml"
+    fx.write_text(effects_toml(effects))
+    cmd = [sys.executable, "-m", "qomni.cli", "campaign", "--out", str(out), "--effects", str(fx),
+           "--seed", str(seed)] + (["--quick"] if quick else [])
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    (out.parent / f"{out.name}.log").write_text(proc.stdout + proc.stderr)
+    if proc.returncode != 0:
+        raise RuntimeError(f"campaign {out} failed ({proc.returncode}): {proc.stderr[-800:]}")
+
+
+def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
+    """Campaign + blind diagnosis of one case (runs in a worker process or a Ray task)."""
+    from diagnosis.diagnose import diagnose_paths
+    from diagnosis.report import write_report
+
+    started = time.perf_counter()
+    result = CaseResult(case)
+    run_dir = Path(work) / case.name
+    try:
+        if not (run_dir / "identification.json").exists():
+            run_campaign(run_dir, case.effects, case.seed, quick)
+        d = diagnose_paths(Path(reference), run_dir, simulate=False)
+        write_report(d, run_dir / "gap")
+        result.verdict = d.verdict
+        result.accepted = [c.hypothesis.name for c in d.accepted]
+        result.ranking = [c.hypothesis.name for c in d.candidates]
+        for name in case.truth:
+            c = next((c for c in d.candidates if c.hypothesis.name == name), None)
+            if c is not None:
+                result.true_shrink[name] = {"shrink": c.evaluation.shrink_affected,
+                                            "ci": list(c.evaluation.shrink_affected_ci),
+                                            "channel": c.evaluation.affected,
+                                            "magnitude": c.magnitude.value, "unit": c.magnitude.unit}
+    except Exception as exc:  # a failed case is reported, not fatal to the suite
+        result.error = f"{type(exc).__name__}: {exc}"
+    result.wall_time = time.perf_counter() - started
+    return result
+
+
+def reference_run(work: Path, quick: bool, seed: int = 1) -> Path:
+    """The ideal emulator's campaign whose identification is the diagnosed model."""
+    ref = work / "reference_ideal"
+    if not (ref / "identification.json").exists():
+        run_campaign(ref, {}, seed, quick)
+    return ref / "identification.json"
+
+
+def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, workers: int | None = None,
+              ray_address: str | None = None, on_result=None) -> list[CaseResult]:
+    """Run every case (reference first), in parallel processes or on a Ray cluster."""
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    reference = str(reference_run(work, quick))
+    results = []
+    if ray_address:
+        import ray  # optional extra: pip install 'qomni[ray]'
+
+        ray.init(address=ray_address)
+        remote = ray.remote(num_cpus=1)(run_case)
+        pending = {remote.remote(c, str(work), reference, quick): c for c in all_cases}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                pending.pop(ref)
+                r = ray.get(ref)
+                results.append(r)
+                if on_result:
+                    on_result(r)
+        return results
+    with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+        futures = [pool.submit(run_case, c, str(work), reference, quick) for c in all_cases]
+        for f in as_completed(futures):
+            r = f.result()
+            results.append(r)
+            if on_result:
+                on_result(r)
+    return results
+
+
+def score(results: list[CaseResult]) -> dict:
+    """Top-1 accuracy over effect cases, false positives (ideal and effect cases), two-effect naming and
+    held-out shrinkage per effect."""
+    single = [r for r in results if len(r.case.truth) == 1 and not r.error]
+    ideal = [r for r in results if not r.case.truth and not r.error]
+    pairs = [r for r in results if len(r.case.truth) > 1 and not r.error]
+    per_effect: dict[str, dict] = {}
+    for r in single:
+        e = per_effect.setdefault(r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
+                                                    "shrink": []})
+        e["cases"] += 1
+        e["top1"] += int(r.top1)
+        e["false_positives"] += len(r.false_positives)
+        if r.case.truth[0] in r.true_shrink:
+            e["shrink"].append(r.true_shrink[r.case.truth[0]]["shrink"])
+    for e in per_effect.values():
+        s = e.pop("shrink")
+        e["median_holdout_shrink"] = float(sorted(s)[len(s) // 2]) if s else None
+        e["min_holdout_shrink"] = float(min(s)) if s else None
+    return {
+        "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,
+        "effect_cases": len(single),
+        "ideal_cases": len(ideal),
+        "ideal_false_positives": sum(len(r.accepted) for r in ideal),
+        "pairs_both_named": sum(r.all_named for r in pairs),
+        "pair_cases": len(pairs),
+        "errors": [f"{r.case.name}: {r.error}" for r in results if r.error],
+        "per_effect": per_effect,
+    }
+
+
+def write_results(results: list[CaseResult], path: str | Path) -> dict:
+    summary = score(results)
+    data = {"summary": summary,
+            "cases": [dict(asdict(r), top1=r.top1, false_positives=r.false_positives) for r in results]}
+    Path(path).write_text(json.dumps(data, indent=2))
+    return summary
