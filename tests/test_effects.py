@@ -235,3 +235,183 @@ def test_actuator_delay_shifts_the_response_by_the_delay():
     assert np.max(np.abs(delayed[:shift])) < 1e-9  # nothing moves during the dead time
     assert rel_error(delayed[shift:], ideal[:-shift]) < 0.01
     assert np.max(np.abs(delayed - ideal)) > 0.8 * delay * np.max(np.diff(ideal)) / dt  # it shows
+
+
+# -- friction ----------------------------------------------------------------------------------------------
+def breakaway(emu, direction, rate, seconds, moving) -> float:
+    """Ramp the torque pattern ``direction`` × rate·t (motor side) until ``moving(state)``: the ramp
+    value then (1 ms steps)."""
+    for k in range(round(seconds / 0.001)):
+        emu.set_motor_torques(np.asarray(direction) * rate * k * 0.001)
+        emu.step(0.001)
+        if moving(emu.true_state()):
+            return rate * k * 0.001
+    raise AssertionError("never broke away")
+
+
+@pytest.mark.parametrize("ratio", [1.0, 2.0])
+def test_stribeck_wheel_breakaway_is_ratio_times_coulomb(ratio):
+    """Lifted wheel under a slow torque ramp: it breaks away at i_G·M = ratio·d_cw."""
+    effects = {"stribeck": {"joints": "wheels", "breakaway_ratio": ratio, "stribeck_velocity": 0.05}}
+    with emulator(effects, lifted=True, seed=1) as emu:
+        m = breakaway(emu, [1, 0, 0, 0], 12.0 / DR.i_G, 1.0, lambda s: abs(s.beta_dot[0]) > 0.02)
+    assert DR.i_G * m == pytest.approx(ratio * T.d_cw, rel=0.08)
+
+
+def test_stribeck_steering_breakaway_is_ratio_times_coulomb():
+    """Steering at rest (mode 1), left side: it breaks away at (a/r)·i_G·2M = ratio·d_cl + 2d_cw·a/r;
+    once sliding faster than v_s the friction is back to d_cl (the side accelerates)."""
+    ratio, ar = 2.0, G.a / G.r
+    effects = {"stribeck": {"joints": "steering", "breakaway_ratio": ratio, "stribeck_velocity": 0.05}}
+    rate = 50.0 / (ar * DR.i_G * 2) / 1.5
+    with emulator(effects, seed=1) as emu:
+        m = breakaway(emu, [-1, 1, 0, 0], rate, 1.5, lambda s: abs(s.alpha_dot[0]) > 0.02)
+        emu.step(0.05)
+        sliding = emu.true_state().alpha_dot[0]
+    q = ar * DR.i_G * 2 * m
+    assert q == pytest.approx(ratio * T.d_cl + 2 * T.d_cw * ar, rel=0.05)
+    assert sliding > 0.15  # the excess torque over the sliding friction accelerates it
+
+
+def test_rolling_resistance_is_proportional_to_the_normal_load():
+    """Straight motion with d_cw + c_rr·N·r per wheel, N = m g/4: with and without a centred
+    payload; lifted wheels (N = 0) have only d_cw."""
+    c_rr, u, seconds = 0.015, 1.0, 0.8
+    for payload in (0.0, 300.0):
+        effects = {"rolling_resistance": {"c_rr": c_rr}}
+        if payload:
+            effects["payload"] = {"mass": payload}
+        mass = T.m_ch + payload
+        with emulator(effects, seed=2) as emu:
+            v = [s.velocity[0] for s in run(emu, [u] * 4, seconds)]
+        r, n = G.r, len(v)
+        coulomb = T.d_cw + c_rr * mass * 9.81 / 4 * r
+        model = integrate(mass + 4 * T.B_w / r**2, 4 * DR.i_G * u / r, 4 * T.d_vw / r**2,
+                          4 * coulomb / r, seconds, n)[1]
+        assert rel_error(v, model) < 0.02, payload
+        assert rel_error(v, mode2_velocity(mass, u, seconds, n)) > 0.1
+    with emulator({"rolling_resistance": {"c_rr": c_rr}}, lifted=True, seed=6) as emu:
+        bd = np.array([s.beta_dot[0] for s in run(emu, [0.5, 0, 0, 0], 0.5)])
+    assert rel_error(bd, integrate(T.B_w, DR.i_G * 0.5, T.d_vw, T.d_cw, 0.5, len(bd))[1]) < 0.01
+
+
+# -- geometry and drive train ------------------------------------------------------------------------------
+def test_wheel_radius_sets_the_distance_per_wheel_revolution():
+    radius = 0.096
+    with emulator({"wheel_radius": {"radius": radius}}, seed=2) as emu:
+        start = emu.true_state()
+        end = run(emu, [1.0] * 4, 1.0)[-1]
+        height = emu._pb.getBasePositionAndOrientation(emu.body)[0][2]
+    travelled = end.pose[0] - start.pose[0]
+    assert travelled / np.mean(end.beta - start.beta) == pytest.approx(radius, rel=2e-3)
+    assert height == pytest.approx(radius, abs=1e-3)  # ride height, contact compression aside
+
+
+def test_backlash_motor_crosses_the_gap_before_the_wheel():
+    """Lifted, torque reversals: the encoder (motor side) leads the wheel by +gap/2 under positive
+    torque and lags by gap/2 under negative, plus the gear's deflection; no gap without the effect."""
+    gap = 0.01
+    lead = {}
+    for name, effects in (("rigid", {}), ("backlash", {"backlash": {"gap": gap}})):
+        with emulator(effects, lifted=True, seed=1) as emu:
+            diffs = []
+            for u in (0.3, -0.3, 0.3):
+                emu.set_motor_torques([u, 0, 0, 0])
+                emu.step(0.2)
+                reading, truth = emu.read_sensors(), emu.true_state()
+                diffs.append(reading.motor_position[0] * 2 * math.pi / DR.encoder_increments / DR.i_G
+                             - truth.beta[0])
+        lead[name] = np.array(diffs)
+    assert np.max(np.abs(lead["rigid"])) < 1e-4
+    assert lead["backlash"] == pytest.approx([gap / 2, -gap / 2, gap / 2], abs=0.15 * gap)
+
+
+def test_backlash_delays_the_wheel_after_a_reversal():
+    """After a torque reversal the motor turns through the gap while the wheel still coasts."""
+    gap = 0.02
+    with emulator({"backlash": {"gap": gap}}, lifted=True, seed=1) as emu:
+        emu.set_motor_torques([0.3, 0, 0, 0])
+        emu.step(0.2)
+        emu.set_motor_torques([-0.3, 0, 0, 0])
+        wheel, encoder = [], []
+        for _ in range(60):
+            emu.step(0.001)
+            wheel.append(emu.true_state().beta_dot[0])
+            encoder.append(emu.read_sensors().motor_velocity[0])
+    # the wheel decelerates only by its own friction until the rotor has crossed the gap
+    free = (T.d_cw + T.d_vw * wheel[0]) / (T.B_w * 0.3)
+    assert wheel[0] - wheel[4] < 1.5 * free * 0.005
+    assert encoder[8] < encoder[0] * 0.8  # the motor (encoder) reverses first
+
+
+def test_steering_compliance_rear_deflects_by_transmitted_torque_over_stiffness():
+    """Steering at rest driven by the front-left wheel only: the linkage carries the torque the rear
+    unit needs; it deflects by that torque / k (the rigid gear constraint's torque, same motion)."""
+    u = 0.9
+    with emulator({}, seed=1) as emu:
+        emu.set_motor_torques([-u, 0, 0, 0])
+        carried = []
+        for _ in range(300):
+            emu.step(0.001)
+            carried.append(emu._pb.getConstraintState(emu._plant.couplings[0])[0])
+    transmitted = abs(np.mean(carried[-100:]))
+    for k in (500.0, 2000.0):
+        with emulator({"steering_compliance": {"stiffness": k, "damping": 2.0}}, seed=1) as emu:
+            emu.set_motor_torques([-u, 0, 0, 0])
+            deflection = []
+            for _ in range(300):
+                emu.step(0.001)
+                s = emu.true_state()
+                deflection.append(s.alpha[0] + s.alpha_rear[0])
+            assert s.alpha[0] > 0.03 and s.alpha_rear[0] < -0.03  # the rear follows, mirrored
+        assert k * np.mean(deflection[-100:]) == pytest.approx(transmitted, rel=0.05)
+
+
+# -- tyres -------------------------------------------------------------------------------------------------
+def steered_circle(effects, alpha_v=0.3, speed=1.0, seconds=2.5):
+    """Mode 2 at α_v with a steering hold through differential torques: mean chassis velocities
+    (ẋ, ẏ, γ̇) over the last 0.5 s."""
+    from ident import kinematics
+    from ident.datasheet import Geometry
+    geometry = Geometry(G.l, G.b, G.a, G.r, G.steering_limit)
+    alpha0 = kinematics.f_icr(np.array([alpha_v]), geometry)[0]
+    hold = np.linalg.pinv(DR.i_G * kinematics.H(1, np.zeros((1, 2)), geometry)[0][5:9, :].T)
+    with emulator(effects, seed=1, initial_alpha=tuple(alpha0)) as emu:
+        out = []
+        for _ in range(round(seconds / DR.cycle_time)):
+            s = emu.true_state()
+            q_hold = 0.5 * (3000.0 * (alpha0 - s.alpha) - 80.0 * s.alpha_dot)
+            drive = 0.9 if s.velocity[0] < speed else 0.45
+            emu.set_motor_torques(drive + hold @ q_hold)
+            emu.step(DR.cycle_time)
+            out.append(s.velocity)
+    return np.mean(out[-round(0.5 / DR.cycle_time):], axis=0)
+
+
+def test_tire_slip_drifts_outward_in_a_steered_circle():
+    """Side force m v²/R over four wheels needs the slip angle F/C_α: the chassis drifts outward at
+    ẏ ≈ −m v³/(4 C_α R); with rigid contact it does not."""
+    alpha_v, stiffness = 0.3, 8000.0
+    radius = (G.l / 2) / math.tan(alpha_v)
+    rigid = steered_circle({}, alpha_v)
+    slip = steered_circle({"tire_slip": {"cornering_stiffness": stiffness}}, alpha_v)
+    v = slip[0]
+    assert v == pytest.approx(1.0, abs=0.05)
+    assert abs(rigid[1]) < 0.002
+    assert slip[1] == pytest.approx(-T.m_ch * v**3 / (4 * stiffness * radius), rel=0.2)
+    assert v / slip[2] > v / rigid[2]  # path radius grows: under-steer
+
+
+def test_tire_slip_leaves_straight_driving_and_steering_at_rest_alone():
+    effects = {"tire_slip": {"cornering_stiffness": 8000.0}}
+    with emulator(effects, seed=3) as emu:
+        states = run(emu, [1.0] * 4, 0.8)
+    v = [s.velocity[0] for s in states]
+    assert rel_error(v, mode2_velocity(T.m_ch, 1.0, 0.8, len(v))) < 0.01
+    assert abs(states[-1].pose[1]) < 1e-3 and abs(states[-1].pose[2]) < 1e-3
+    for name, fx in (("ideal", {}), ("slip", effects)):
+        with emulator(fx, seed=4) as emu:
+            alpha = [s.alpha[0] for s in run(emu, [-0.6, 0.6, 0, 0], 0.3)]
+        if name == "ideal":
+            reference = np.array(alpha)
+    assert rel_error(alpha, reference) < 0.02

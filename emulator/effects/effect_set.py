@@ -9,15 +9,22 @@ from pathlib import Path
 from typing import Iterator
 
 from .actuator_delay import ActuatorDelay
+from .backlash import Backlash
 from .base import Effect, EffectsError, Param
 from .heavy_steering_units import HeavySteeringUnits
 from .incline import Incline
 from .payload import Payload
+from .rolling_resistance import RollingResistance
+from .steering_compliance import SteeringCompliance
+from .stribeck import Stribeck
+from .tire_slip import TireSlip
 from .torque_constant_error import TorqueConstantError
+from .wheel_radius import WheelRadius
 
 # Every effect, in the order the emulator applies them (the order of a file does not matter).
 REGISTRY: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    HeavySteeringUnits, Payload, Incline, ActuatorDelay, TorqueConstantError)}
+    HeavySteeringUnits, Payload, WheelRadius, Backlash, Incline, SteeringCompliance, TireSlip,
+    Stribeck, RollingResistance, ActuatorDelay, TorqueConstantError)}
 
 
 class EffectSet:

@@ -1,0 +1,32 @@
+"""Stribeck friction: the Coulomb friction of the wheel or steering joints peaks at low speed.
+
+The joints' stiction (a velocity motor holding speed 0 up to its force limit) gets the limit
+d_c·(1 + (ratio − 1)·exp(−(v/v_s)²)) from the joint speed v every physics step: breakaway takes
+ratio × d_c, and the friction falls to d_c once the joint slides faster than v_s."""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Param, Plant
+
+
+class Stribeck(Effect):
+    name = "stribeck"
+    summary = "low-speed friction peak (breakaway above Coulomb) in the wheel or steering joints"
+    params = {
+        "joints": Param("-", kind="choice", choices=("wheels", "steering"),
+                        doc="the wheel joints (wheel side of the gear) or the steering joints"),
+        "breakaway_ratio": Param("-", 1.0, 5.0, doc="static / Coulomb friction"),
+        "stribeck_velocity": Param("rad/s", 1e-3, 1.0, doc="joint speed at which the peak decays"),
+    }
+
+    def attach(self, plant: Plant) -> None:
+        plant.dynamic_friction()
+        wheels = self.values["joints"] == "wheels"
+        self._joints = plant.wheel if wheels else plant.steer
+        self._slots = np.array([plant.coulomb_joints.index(j) for j in self._joints])
+        self._peak = plant.coulomb_base[self._slots] * (self.values["breakaway_ratio"] - 1)
+
+    def before_step(self, plant: Plant) -> None:
+        _, speed = plant.joint_states(self._joints)
+        plant.coulomb[self._slots] += self._peak * np.exp(-(speed / self.values["stribeck_velocity"])**2)

@@ -1,0 +1,64 @@
+"""Tyre lateral slip: the wheels carry side force through a slip angle instead of rigid contact.
+
+The wheel/floor contact keeps PyBullet's friction along the rolling direction but (almost) none along the
+axle (anisotropic friction, with box instead of cone friction so the directions stay independent). Each physics step every loaded wheel gets the lateral tyre force
+F = −C_α·atan(v_lat / max(|v_long|, v_min)), saturated at μ·N, at its contact point, from the contact
+point's velocity across (v_lat) and along (v_long) the wheel and its contact normal force N. The vehicle
+drifts and under-steers in a steered circle by the slip angles F/C_α the side forces need; straight
+driving and steering at rest need no side force and are unaffected."""
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+
+from .base import Effect, Param, Plant
+from .rolling_resistance import wheel_loads
+
+LATERAL_FRICTION_SCALE = 1e-3  # PyBullet's remaining Coulomb friction along the axle
+V_MIN = 0.05  # m/s, slip-angle denominator floor at standstill (keeps the force finite and stable)
+
+
+class TireSlip(Effect):
+    name = "tire_slip"
+    summary = "lateral tyre force from the slip angle (cornering stiffness) instead of rigid contact"
+    params = {
+        "cornering_stiffness": Param("N/rad", 500.0, 2e5, doc="C_α per wheel"),
+    }
+
+    def attach(self, plant: Plant) -> None:
+        # Cone friction couples the two friction rows in impulse space; with the axle row scaled down its
+        # impulses grow by 1/scale and starve the rolling direction (no traction at α = 0). Box friction
+        # keeps them independent.
+        plant.pb.setPhysicsEngineParameter(enableConeFriction=0)
+        for j in plant.wheel:
+            plant.pb.changeDynamics(plant.body, j, anisotropicFriction=[1.0, LATERAL_FRICTION_SCALE, 1.0])
+        self._link = {j: i for i, j in enumerate(plant.wheel)}
+        self._mu = plant.description.body.tire_friction  # × the floor's 1.0
+        self._radius = plant.plan.wheel_radius
+        # stiffest the explicit force may act at standstill: half the chassis mass share per wheel per step
+        self._max_damping = 0.5 * plant.description.truth.m_ch / 4 / plant.time_step
+
+    def before_step(self, plant: Plant) -> None:
+        pb = plant.pb
+        load = wheel_loads(plant, self._link)
+        if not load.any():
+            return
+        states = pb.getLinkStates(plant.body, plant.wheel, computeLinkVelocity=1,
+                                  computeForwardKinematics=1)
+        centre = np.array([st[4] for st in states])
+        x, y, z, w = np.array([st[5] for st in states]).T
+        lateral = np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z)], axis=1)  # axle, horizontal
+        lateral /= np.linalg.norm(lateral, axis=1, keepdims=True)
+        lin, ang = np.array([st[6] for st in states]), np.array([st[7] for st in states])
+        # contact point r below the centre: v = v_centre + ω × (0, 0, −r)
+        v_lat = np.einsum("ij,ij->i", lateral, lin[:, :2] + self._radius * np.stack(
+            [-ang[:, 1], ang[:, 0]], axis=1))
+        v_long = np.abs(lateral[:, 1] * lin[:, 0] - lateral[:, 0] * lin[:, 1])  # e_long = e_lat × z
+        force = -self.values["cornering_stiffness"] * np.arctan(v_lat / np.maximum(v_long, V_MIN))
+        limit = np.minimum(self._max_damping * np.abs(v_lat), self._mu * load)
+        force = np.clip(force, -limit, limit)
+        centre[:, 2] -= self._radius
+        for i in np.flatnonzero(load > 0):
+            pb.applyExternalForce(plant.body, plant.wheel[i],
+                                  (force[i] * lateral[i, 0], force[i] * lateral[i, 1], 0.0),
+                                  centre[i].tolist(), pybullet.WORLD_FRAME)
