@@ -574,13 +574,19 @@ PLANT_DESCRIPTION = (
     "crosses zero) with the drive force at or below the static level, then k = 1 again.")
 
 
+_INITIAL_NOTE = ("initial state: a zero chassis velocity starts at rest (k = 1); otherwise alpha_l0, alpha_r0 "
+                 "must lie within mode_tol of mode 2, 3 or 4's configuration and the velocities are projected "
+                 "onto that mode's s_dot_k")
+
+
 def plant_variables(p: dict[str, float], geometry, i_G: float, eps: float = DEFAULT_EPS,
                     std: dict[str, float] | None = None) -> list[Variable]:
     """The variables of the plant FMU (order = value references):
 
     * ``time``; tunable parameters p (18), ``l, b, a, r`` (m), ``steering_limit`` (rad), ``i_G``, ``eps``
-      (rad/s), ``mode_tol`` (rad), ``omega_rest`` (rad/s), ``max_step`` (s); fixed parameters (initial state,
-      at rest) ``x0, y0`` (m), ``gamma0, alpha_l0, alpha_r0`` (rad);
+      (rad/s), ``mode_tol`` (rad), ``omega_rest`` (rad/s), ``max_step`` (s); fixed parameters (initial state)
+      ``x0, y0`` (m), ``gamma0, alpha_l0, alpha_r0`` (rad), ``x_ch_dot0, y_ch_dot0`` (m/s),
+      ``gamma_ch_dot0, alpha_l_dot0, alpha_r_dot0`` (rad/s);
     * inputs ``motor_torque.fl, .rl, .fr, .rr`` (N m, motor side);
     * outputs ``x_w, y_w, gamma_ch`` (world pose), ``x_ch_dot, y_ch_dot`` (m/s, chassis frame),
       ``gamma_ch_dot`` (rad/s), ``alpha_l, alpha_r`` (rad), ``alpha_l_dot, alpha_r_dot`` (rad/s),
@@ -605,8 +611,13 @@ def plant_variables(p: dict[str, float], geometry, i_G: float, eps: float = DEFA
                                             ("y0", "m", "initial world y of the chassis centre"),
                                             ("gamma0", "rad", "initial yaw angle gamma_ch"),
                                             ("alpha_l0", "rad", "initial left steering angle"),
-                                            ("alpha_r0", "rad", "initial right steering angle"))):
-        out.append(Variable(name, "Float64", "parameter", "fixed", f"{text} (the vehicle starts at rest)",
+                                            ("alpha_r0", "rad", "initial right steering angle"),
+                                            ("x_ch_dot0", "m/s", "initial chassis velocity, chassis x"),
+                                            ("y_ch_dot0", "m/s", "initial chassis velocity, chassis y"),
+                                            ("gamma_ch_dot0", "rad/s", "initial yaw rate"),
+                                            ("alpha_l_dot0", "rad/s", "initial left steering rate"),
+                                            ("alpha_r_dot0", "rad/s", "initial right steering rate"))):
+        out.append(Variable(name, "Float64", "parameter", "fixed", f"{text}; {_INITIAL_NOTE}",
                             start=0.0, unit=unit, group="INITIAL" if j == 0 else None))
     for j, w in enumerate(WHEELS):
         out.append(Variable(f"motor_torque.{w}", "Float64", "input", "continuous",

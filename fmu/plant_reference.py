@@ -106,12 +106,35 @@ class PlantParameters:
         return min(self.max_step, 2.0 / lam) if lam > 0 else self.max_step
 
 
-def initial_state(pose0=(0.0, 0.0, 0.0), alpha0=(0.0, 0.0)) -> np.ndarray:
-    """State (13,) at rest: world pose (x_w, y_w in m, gamma in rad), steering angles (rad), k = 1."""
+def initial_state(P: "PlantParameters", pose0=(0.0, 0.0, 0.0), alpha0=(0.0, 0.0),
+                  velocity0=(0.0, 0.0, 0.0, 0.0, 0.0)) -> np.ndarray:
+    """Initial state (13,): world pose (x_w, y_w in m, gamma in rad), steering angles (rad) and velocity0 =
+    (x_ch_dot, y_ch_dot, gamma_ch_dot, alpha_l_dot, alpha_r_dot). A zero chassis velocity starts at rest
+    (k = 1); otherwise alpha0 must be within mode_tol of mode 2, 3 or 4's configuration: alpha is set onto
+    it and the velocity projected onto that mode's s_dot_k (others dropped); beta = 0.
+
+    Raises:
+        ValueError: alpha0 beyond the stops, or a chassis velocity with alpha0 in no chassis mode.
+    """
+    alpha0 = np.asarray(alpha0, dtype=float)
+    velocity0 = np.asarray(velocity0, dtype=float)
+    if np.any(np.abs(alpha0) > P.steering_limit):
+        raise ValueError(f"alpha0 {alpha0} beyond the stops +-{P.steering_limit}")
     s = np.zeros(N_STATE)
     s[X:X + 3] = pose0
     s[ALPHA:ALPHA + 2] = alpha0
+    s[SDOT:SDOT + 2] = velocity0[3:5]
     s[K] = 1
+    if not np.any(velocity0[:3] != 0):
+        return s
+    kc = configuration_mode(alpha0, P)
+    if kc == 1:
+        raise ValueError("an initial chassis velocity needs alpha0 in mode 2, 3 or 4's configuration")
+    cfg, av = _configuration(kc, alpha0, P)
+    _engage(s, kc, cfg, av, P)
+    s[SDOT + _chassis_column(kc)] = velocity0[0] if kc == 2 else velocity0[1 if kc == 3 else 2]
+    s[BETA:BETA + 4] = 0.0
+    s[K] = kc
     return s
 
 
@@ -174,27 +197,14 @@ def _chassis_force(k, alpha, alpha_v, u, P):
     return P.i_G * float(h @ u), P.p[_J["d_cw"]] * float(np.sum(np.abs(h))), float(np.max(np.abs(h)))
 
 
-def _try_engage(y, u, P) -> int:
-    alpha = y[ALPHA:ALPHA + 2].copy()
-    kc = configuration_mode(alpha, P)
-    if kc == 1:
-        return 1
-    av = 0.0
+def _configuration(kc, alpha, P):
     if kc == 2:
         av = float(kinematics.alpha_v_from_alpha(alpha, P._g)[0])
-        cfg = kinematics.f_icr(av, P._g)[0]
-    else:
-        cfg = kinematics.mode_alpha(kc, P._g)
-    tau, F, _ = _chassis_force(kc, cfg, av, u, P)
-    if not abs(tau) > F:
-        return 1
-    if kc == 3:
-        H1b = _H(1, cfg, None, P)[5:9]
-        for j, d_c in enumerate((P.p[_J["d_cl"]], P.p[_J["d_cr"]])):
-            tau_s = P.i_G * float(H1b[:, j] @ u)
-            F_s = d_c + P.p[_J["d_cw"]] * float(np.sum(np.abs(H1b[:, j])))
-            if math.copysign(1.0, cfg[j]) * tau_s < -F_s:
-                return 1
+        return kinematics.f_icr(av, P._g)[0], av
+    return kinematics.mode_alpha(kc, P._g), 0.0
+
+
+def _engage(y, kc, cfg, av, P):
     alpha_dot = y[SDOT:SDOT + 2].copy()
     _set_alpha(y, cfg, P)
     if kc == 2:
@@ -205,6 +215,25 @@ def _try_engage(y, u, P) -> int:
         y[ALPHA_V] = 0.0
         y[SDOT] = 0.0
     y[SDOT + 1] = 0.0
+
+
+def _try_engage(y, u, P) -> int:
+    alpha = y[ALPHA:ALPHA + 2].copy()
+    kc = configuration_mode(alpha, P)
+    if kc == 1:
+        return 1
+    cfg, av = _configuration(kc, alpha, P)
+    tau, F, _ = _chassis_force(kc, cfg, av, u, P)
+    if not abs(tau) > F:
+        return 1
+    if kc == 3:
+        H1b = _H(1, cfg, None, P)[5:9]
+        for j, d_c in enumerate((P.p[_J["d_cl"]], P.p[_J["d_cr"]])):
+            tau_s = P.i_G * float(H1b[:, j] @ u)
+            F_s = d_c + P.p[_J["d_cw"]] * float(np.sum(np.abs(H1b[:, j])))
+            if math.copysign(1.0, cfg[j]) * tau_s < -F_s:
+                return 1
+    _engage(y, kc, cfg, av, P)
     return kc
 
 

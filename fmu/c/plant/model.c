@@ -29,7 +29,9 @@ FmuStatus fmu_model_initialize(FmuValues *v, char *message, size_t size) {
     const double *x = v->float64;
     double pose0[3] = {x[PL_INITIAL], x[PL_INITIAL + 1], x[PL_INITIAL + 2]};
     double alpha0[2] = {x[PL_INITIAL + 3], x[PL_INITIAL + 4]};
-    if (qomni_plant_init(v->state, pose0, alpha0, &P, &error) != 0) {
+    double velocity0[5] = {x[PL_INITIAL + 5], x[PL_INITIAL + 6], x[PL_INITIAL + 7], x[PL_INITIAL + 8],
+                           x[PL_INITIAL + 9]};
+    if (qomni_plant_init(v->state, pose0, alpha0, velocity0, &P, &error) != 0) {
         snprintf(message, size, "%s", error ? error : "invalid initial state");
         return FMU_ERROR;
     }

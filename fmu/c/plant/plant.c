@@ -115,12 +115,16 @@ int qomni_plant_configuration_mode(const double alpha[2], const QomniPlantParame
     return 1;
 }
 
+static void set_alpha(Model *m, double *y, const double target[2]);
+static void configuration(Model *m, int kc, const double alpha[2], double cfg[2], double *alpha_v);
+static void engage(Model *m, double *y, int kc, const double cfg[2], double alpha_v);
+
 int qomni_plant_init(double state[QOMNI_PLANT_N_STATE], const double pose0[3], const double alpha0[2],
-                     const QomniPlantParameters *P, const char **error) {
+                     const double velocity0[5], const QomniPlantParameters *P, const char **error) {
     if (qomni_plant_check(P, error)) return 1;
-    for (int j = 0; j < 3; j++) {
-        if (!isfinite(pose0[j])) {
-            *error = "the initial pose x0, y0, gamma0 must be finite";
+    for (int j = 0; j < 5; j++) {
+        if (!isfinite(j < 3 ? pose0[j] : 0.0) || !isfinite(velocity0[j])) {
+            *error = "the initial pose and velocities must be finite";
             return 1;
         }
     }
@@ -133,7 +137,24 @@ int qomni_plant_init(double state[QOMNI_PLANT_N_STATE], const double pose0[3], c
     memset(state, 0, QOMNI_PLANT_N_STATE * sizeof state[0]);
     memcpy(&state[PS_X], pose0, 3 * sizeof pose0[0]);
     memcpy(&state[PS_ALPHA], alpha0, 2 * sizeof alpha0[0]);
+    state[PS_SDOT] = velocity0[3];
+    state[PS_SDOT + 1] = velocity0[4];
     state[PS_K] = 1.0;
+    if (velocity0[0] == 0.0 && velocity0[1] == 0.0 && velocity0[2] == 0.0) return 0;
+    Model m;
+    model_of(P, &m);
+    int kc = qomni_plant_configuration_mode(alpha0, P);
+    if (kc == 1) {
+        *error = "an initial chassis velocity needs alpha_l0, alpha_r0 within mode_tol of mode 2, 3 or 4's "
+                 "configuration (9)";
+        return 1;
+    }
+    double cfg[2], av;
+    configuration(&m, kc, alpha0, cfg, &av);
+    engage(&m, state, kc, cfg, av);
+    state[PS_SDOT + chassis_column(kc)] = kc == 2 ? velocity0[0] : velocity0[kc == 3 ? 1 : 2];
+    memset(&state[PS_BETA], 0, 4 * sizeof state[0]); /* beta(0) = 0 by definition */
+    state[PS_K] = (double)kc;
     return 0;
 }
 
@@ -206,16 +227,39 @@ static void chassis_force(Model *m, int k, double alpha[2], double alpha_v, cons
 /* mode 1 -> k at rest: the wheels sit in mode k's configuration (within mode_tol) and the drive force
  * breaks the chassis loose; in mode 3 no side may be pulled off its stop by more than its static
  * steering friction. */
-static void try_engage(Model *m, double *y, int *k, const double u[4]) {
-    double alpha[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]}, cfg[2], av = 0.0;
-    int kc = qomni_plant_configuration_mode(alpha, m->P);
-    if (kc == 1) return;
+static void configuration(Model *m, int kc, const double alpha[2], double cfg[2], double *alpha_v) {
+    *alpha_v = 0.0;
     if (kc == 2) {
-        av = qomni_plant_alpha_v_from_alpha(alpha, m->g);
-        qomni_plant_f_icr(av, m->g, cfg);
+        double a[2] = {alpha[0], alpha[1]};
+        *alpha_v = qomni_plant_alpha_v_from_alpha(a, m->g);
+        qomni_plant_f_icr(*alpha_v, m->g, cfg);
     } else {
         mode_alpha(kc, m->g, cfg);
     }
+}
+
+/* set alpha onto mode kc's configuration cfg and project the steering rate onto the mode */
+static void engage(Model *m, double *y, int kc, const double cfg[2], double alpha_v) {
+    double alpha_dot[2] = {y[PS_SDOT], y[PS_SDOT + 1]};
+    set_alpha(m, y, cfg);
+    if (kc == 2) {
+        double H2[18], c[2] = {cfg[0], cfg[1]};
+        kinematic_model(m, 2, c, alpha_v, H2);
+        double f0 = H2[3 * 2], f1 = H2[4 * 2]; /* f_ICR'(alpha_v) */
+        y[PS_ALPHA_V] = alpha_v;
+        y[PS_SDOT] = (f0 * alpha_dot[0] + f1 * alpha_dot[1]) / (f0 * f0 + f1 * f1);
+    } else {
+        y[PS_ALPHA_V] = 0.0;
+        y[PS_SDOT] = 0.0;
+    }
+    y[PS_SDOT + 1] = 0.0;
+}
+
+static void try_engage(Model *m, double *y, int *k, const double u[4]) {
+    double alpha[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]}, cfg[2], av;
+    int kc = qomni_plant_configuration_mode(alpha, m->P);
+    if (kc == 1) return;
+    configuration(m, kc, alpha, cfg, &av);
     double tau, F, hmax;
     chassis_force(m, kc, cfg, av, u, &tau, &F, &hmax);
     if (!(fabs(tau) > F)) return;
@@ -232,19 +276,7 @@ static void try_engage(Model *m, double *y, int *k, const double u[4]) {
             if (into_stop * tau_s < -F_s) return; /* this side leaves its stop: it steers (mode 1) */
         }
     }
-    double alpha_dot[2] = {y[PS_SDOT], y[PS_SDOT + 1]};
-    set_alpha(m, y, cfg);
-    if (kc == 2) {
-        double H2[18];
-        kinematic_model(m, 2, cfg, av, H2);
-        double f0 = H2[3 * 2], f1 = H2[4 * 2]; /* f_ICR'(alpha_v) */
-        y[PS_ALPHA_V] = av;
-        y[PS_SDOT] = (f0 * alpha_dot[0] + f1 * alpha_dot[1]) / (f0 * f0 + f1 * f1);
-    } else {
-        y[PS_ALPHA_V] = 0.0;
-        y[PS_SDOT] = 0.0;
-    }
-    y[PS_SDOT + 1] = 0.0;
+    engage(m, y, kc, cfg, av);
     *k = kc;
 }
 

@@ -42,9 +42,13 @@ typedef struct {
 
 /* 0 if the parameters are admissible, else 1 and *error points to a static message. */
 int qomni_plant_check(const QomniPlantParameters *P, const char **error);
-/* State at rest: pose0 = (x_w, y_w, gamma), alpha0 = (alpha_l, alpha_r) within the stops; beta = 0, k = 1. */
+/* Initial state: pose0 = (x_w, y_w, gamma), alpha0 = (alpha_l, alpha_r) within the stops, velocity0 =
+ * (x_ch_dot, y_ch_dot, gamma_ch_dot, alpha_l_dot, alpha_r_dot), beta = 0. A zero chassis velocity starts
+ * at rest (k = 1, s_dot_1 = alpha_dot); otherwise alpha0 must be within mode_tol of mode 2, 3 or 4's
+ * configuration: alpha is set onto it and the velocity projected onto that mode's s_dot_k (x_ch_dot and
+ * alpha_v_dot = f'.alpha_dot/|f'|^2, y_ch_dot or gamma_ch_dot; the other components are dropped). */
 int qomni_plant_init(double state[QOMNI_PLANT_N_STATE], const double pose0[3], const double alpha0[2],
-                     const QomniPlantParameters *P, const char **error);
+                     const double velocity0[5], const QomniPlantParameters *P, const char **error);
 /* Advance the state by h > 0 s with the motor torques u (N m, motor side) held constant. On error the
  * state is unchanged. */
 int qomni_plant_step(double state[QOMNI_PLANT_N_STATE], const double u[4], const QomniPlantParameters *P,

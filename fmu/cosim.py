@@ -1,0 +1,182 @@
+"""Co-simulating the plant FMU from Python with fmpy (FMI 2.0 or 3.0): a version-neutral slave wrapper and
+an adapter that makes the plant look like the vehicle (:class:`hil.measurement.VehicleInterface`), so the
+campaign controller (:class:`ident.controller.StepController`) drives the FMU exactly as it drives the
+vehicle over CAN.
+
+``fmpy`` is imported on first use (it is a test / optional dependency of qomni).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from hil.measurement import Measurement
+from ident.symbolic import WHEELS
+
+MOTOR_TORQUE = tuple(f"motor_torque.{w}" for w in WHEELS)
+MOTOR_POSITION = tuple(f"motor_position.{w}" for w in WHEELS)
+MOTOR_VELOCITY = tuple(f"motor_velocity.{w}" for w in WHEELS)
+POSE = ("x_w", "y_w", "gamma_ch")
+VELOCITY = ("x_ch_dot", "y_ch_dot", "gamma_ch_dot")
+ALPHA = ("alpha_l", "alpha_r")
+ALPHA_DOT = ("alpha_l_dot", "alpha_r_dot")
+REAL_OUTPUTS = POSE + VELOCITY + ALPHA + ALPHA_DOT + MOTOR_POSITION + MOTOR_VELOCITY
+"""The plant FMU's Float64 outputs, in this order (units: fmu.export.plant_variables)."""
+
+
+class FmuSlave:
+    """One instance of a Co-Simulation FMU (FMI 2.0 or 3.0) through fmpy, in Step Mode after construction.
+
+    Args:
+        path: the ``.fmu`` file (or an extracted FMU directory).
+        start_values: {variable name: value} set before initialization (parameters, inputs).
+        start_time: s.
+        instance_name: the FMI instance name.
+    Raises:
+        ValueError: an unknown variable name. fmpy.fmi1.FMICallException: an FMI call failed (message
+            logged by the FMU on stdout).
+    """
+
+    def __init__(self, path: str | os.PathLike, start_values: dict | None = None, start_time: float = 0.0,
+                 instance_name: str = "plant"):
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from fmpy.fmi3 import FMU3Slave
+
+        path = Path(path)
+        self._tmp = None
+        if path.is_dir():
+            directory = str(path)
+        else:
+            self._tmp = tempfile.mkdtemp(prefix="qomni_fmu_")
+            directory = extract(str(path), self._tmp)
+        self.model_description = md = read_model_description(directory)
+        self.version = int(md.fmiVersion[0])
+        self.variables = {v.name: v for v in md.modelVariables}
+        cls = FMU2Slave if self.version == 2 else FMU3Slave
+        self.fmu = cls(guid=md.guid, unzipDirectory=directory, modelIdentifier=md.coSimulation.modelIdentifier,
+                       instanceName=instance_name)
+        self.fmu.instantiate()
+        if self.version == 2:
+            self.fmu.setupExperiment(startTime=start_time)
+            self.fmu.enterInitializationMode()
+        else:
+            self.fmu.enterInitializationMode(startTime=start_time)
+        self.set(start_values or {})
+        self.fmu.exitInitializationMode()
+        self.time = float(start_time)
+        self._get_real = self.fmu.getReal if self.version == 2 else self.fmu.getFloat64
+        self._set_real = self.fmu.setReal if self.version == 2 else self.fmu.setFloat64
+        self._get_int = self.fmu.getInteger if self.version == 2 else self.fmu.getInt32
+
+    def refs(self, names) -> list[int]:
+        """Value references of ``names``. Raises ValueError for an unknown name."""
+        try:
+            return [self.variables[n].valueReference for n in names]
+        except KeyError as exc:
+            raise ValueError(f"the FMU has no variable {exc.args[0]!r}") from None
+
+    def set(self, values: dict) -> None:
+        """Set variables by name (Float64 / Real, Int32 / Integer, Boolean)."""
+        by_type: dict[str, list] = {}
+        for name, value in values.items():
+            by_type.setdefault(self.variables[name].type if name in self.variables else "?", []).append(
+                (name, value))
+        for typ, pairs in by_type.items():
+            refs = self.refs([n for n, _ in pairs])
+            vals = [v for _, v in pairs]
+            if typ in ("Real", "Float64"):
+                (self.fmu.setReal if self.version == 2 else self.fmu.setFloat64)(refs, [float(v) for v in vals])
+            elif typ in ("Integer", "Int32"):
+                (self.fmu.setInteger if self.version == 2 else self.fmu.setInt32)(refs, [int(v) for v in vals])
+            else:
+                self.fmu.setBoolean(refs, [bool(v) for v in vals])
+
+    def get_real(self, refs: list[int]) -> np.ndarray:
+        return np.array(self._get_real(refs))
+
+    def set_real(self, refs: list[int], values) -> None:
+        self._set_real(refs, [float(v) for v in values])
+
+    def get_int(self, refs: list[int]) -> list[int]:
+        return list(self._get_int(refs))
+
+    def step(self, h: float) -> None:
+        """One communication step of h > 0 s from the current time."""
+        self.fmu.doStep(currentCommunicationPoint=self.time, communicationStepSize=h)
+        self.time += h
+
+    def close(self) -> None:
+        """Terminate and free the instance; remove the extracted files."""
+        if self.fmu is not None:
+            self.fmu.terminate()
+            self.fmu.freeInstance()
+            self.fmu = None
+        if self._tmp:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class PlantVehicle:
+    """The plant FMU as a :class:`hil.measurement.VehicleInterface`: ``exchange(u)`` returns the sample at
+    the start of the cycle (motor positions and velocities, steering angles, the torque u applied from
+    this instant) and advances the FMU by ``cycle_time``. Sensors are ideal (no quantization or noise).
+
+    Args:
+        path: the plant ``.fmu``; cycle_time: T_s, s; start_values: FMU start values (e.g. ``x0``,
+            ``alpha_l0``, parameters).
+    """
+
+    def __init__(self, path: str | os.PathLike, cycle_time: float, start_values: dict | None = None):
+        if not cycle_time > 0:
+            raise ValueError(f"cycle_time must be > 0 s, got {cycle_time!r}")
+        self.cycle_time = float(cycle_time)
+        self.slave = FmuSlave(path, start_values)
+        self._u_refs = self.slave.refs(MOTOR_TORQUE)
+        self._y_refs = self.slave.refs(REAL_OUTPUTS)
+        self._k_refs = self.slave.refs(("k", "k_configuration"))
+        self.cycles = 0
+        self.last: dict[str, np.ndarray] = {}
+
+    def outputs(self) -> dict[str, np.ndarray]:
+        """All outputs now: pose (3,), velocity (3,), alpha, alpha_dot (2,), motor_position,
+        motor_velocity (4,), k and k_configuration (ints)."""
+        y = self.slave.get_real(self._y_refs)
+        k = self.slave.get_int(self._k_refs)
+        return {"pose": y[0:3], "velocity": y[3:6], "alpha": y[6:8], "alpha_dot": y[8:10],
+                "motor_position": y[10:14], "motor_velocity": y[14:18], "k": k[0], "k_configuration": k[1]}
+
+    def exchange(self, motor_torque: np.ndarray) -> Measurement:
+        u = np.asarray(motor_torque, dtype=float)
+        if u.shape != (4,):
+            raise ValueError(f"motor_torque must have shape (4,), got {u.shape}")
+        self.last = self.outputs()
+        m = Measurement(time=self.cycles * self.cycle_time, motor_position=self.last["motor_position"].copy(),
+                        motor_velocity=self.last["motor_velocity"].copy(), motor_torque=u.copy(),
+                        alpha=self.last["alpha"].copy())
+        self.slave.set_real(self._u_refs, u)
+        self.slave.step(self.cycle_time)
+        self.cycles += 1
+        return m
+
+    def stop(self) -> None:
+        """Zero torque (the FMU keeps running until :meth:`close`)."""
+        if self.slave.fmu is not None:
+            self.slave.set_real(self._u_refs, np.zeros(4))
+
+    def close(self) -> None:
+        self.slave.close()
+
+
+__all__ = ["MOTOR_TORQUE", "MOTOR_POSITION", "MOTOR_VELOCITY", "POSE", "VELOCITY", "ALPHA", "ALPHA_DOT",
+           "REAL_OUTPUTS", "FmuSlave", "PlantVehicle"]
