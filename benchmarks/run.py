@@ -1,7 +1,8 @@
 """Benchmarks, one command: ``python benchmarks/run.py [--quick]``.
 
 Measured in the same run, so the ratios hold on a noisy shared machine:
-1. emulator physics step vs. bare PyBullet stepping of the same URDF (same time step, no drives);
+1. emulator physics step vs. bare PyBullet stepping of the same URDF (same time step, no drives), also
+   with every unmodelled effect on at its example magnitude;
 2. one lock-step CANopen cycle (client + server + emulator, virtual bus) vs. the bare physics of a cycle;
 3. the lock-step campaign (quick or full) vs. real time.
 """
@@ -21,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from emulator.description import VehicleDescription  # noqa: E402
+from emulator.effects import REGISTRY, EffectSet  # noqa: E402
 from emulator.urdf import vehicle_urdf  # noqa: E402
 from emulator.vehicle import Emulator  # noqa: E402
 
@@ -53,8 +55,8 @@ def bare_pybullet_step(description: VehicleDescription, steps: int) -> float:
     return cost
 
 
-def emulator_step(description: VehicleDescription, steps: int) -> float:
-    with Emulator(description, seed=0) as emu:
+def emulator_step(description: VehicleDescription, steps: int, effects=None) -> float:
+    with Emulator(description, seed=0, effects=effects) as emu:
         def run() -> float:
             t = time.perf_counter()
             for k in range(steps):
@@ -104,12 +106,16 @@ def main() -> None:
     steps = 2000 if args.quick else 5000
     bare = bare_pybullet_step(d, steps)
     emu = emulator_step(d, steps)
+    every_effect = EffectSet.combine(*(EffectSet.example(name) for name in REGISTRY))
+    emu_effects = emulator_step(d, steps, every_effect)
     cycle = lockstep_cycle(d, 500 if args.quick else 1500)
     emulated, wall = campaign(d, args.quick)
     physics_per_cycle = bare * round(d.drive.cycle_time / 0.001)
     rows = [
         ("bare PyBullet step (same URDF, 1 ms)", f"{bare * 1e6:8.1f} µs", "1.00 (baseline)"),
         ("emulator step (drives, friction, sensors)", f"{emu * 1e6:8.1f} µs", f"{emu / bare:.2f} × bare"),
+        ("emulator step with all effects (example files)", f"{emu_effects * 1e6:8.1f} µs",
+         f"{emu_effects / bare:.2f} × bare"),
         ("lock-step CANopen cycle (2 ms emulated)", f"{cycle * 1e6:8.1f} µs",
          f"{cycle / physics_per_cycle:.2f} × bare physics of a cycle"),
         (f"campaign ({'quick' if args.quick else 'full'}, {emulated:.1f} s emulated)", f"{wall:8.1f} s",

@@ -5,6 +5,7 @@ the default emulator is the prototype. Short runs without CAN."""
 import dataclasses
 import math
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -415,3 +416,43 @@ def test_tire_slip_leaves_straight_driving_and_steering_at_rest_alone():
         if name == "ideal":
             reference = np.array(alpha)
     assert rel_error(alpha, reference) < 0.02
+
+
+# -- all effects together -----------------------------------------------------------------------------------
+ALL = EffectSet.combine(*(EffectSet.example(name) for name in REGISTRY))
+
+
+def test_all_effects_together_are_stable_and_bit_deterministic():
+    """Every effect at its example magnitude at once, in each motion mode's configuration: finite,
+    bounded motion, identical sensor readings for the same seed; the reading carries nothing else."""
+    assert set(ALL.names) == set(REGISTRY)
+    cases = (((0.2, -0.3), [-0.9, 0.9, 1.0, -1.0]), ((0.0, 0.0), [0.8] * 4),
+             ((-THETA4, THETA4), [-0.8, -0.8, 0.8, 0.8]), ((-math.pi / 2, math.pi / 2), [0, 0, 0.5, -0.5]))
+
+    def trace(alpha, u):
+        with Emulator(D, seed=4, effects=ALL, initial_alpha=alpha) as emu:
+            assert emu.effects is ALL
+            out = []
+            for k in range(150):
+                emu.set_motor_torques(np.array(u) * (1 if k < 100 else -0.5))
+                emu.step(DR.cycle_time)
+                r = emu.read_sensors()
+                assert set(vars(r)) == {"time", "motor_position", "motor_velocity", "motor_torque",
+                                        "steering_position"}
+                out.append(np.concatenate([r.motor_position, r.motor_velocity, r.motor_torque,
+                                           r.steering_position]))
+            s = emu.true_state()
+            assert np.all(np.isfinite(s.velocity)) and np.all(np.abs(s.velocity) < 2.0)
+            assert np.linalg.norm(s.pose[:2]) < 1.0
+            return np.array(out)
+
+    traces = [trace(alpha, u) for alpha, u in cases]
+    assert np.array_equal(traces[0], trace(*cases[0]))
+
+
+def test_docs_list_every_effect_and_parameter():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "effects.md").read_text()
+    for name, kind in REGISTRY.items():
+        assert f"`{name}`" in text, name
+        for key, spec in kind.params.items():
+            assert f"`{key}`" in text, (name, key)

@@ -49,10 +49,28 @@ class EffectSet:
     def prototype(cls, description=None) -> "EffectSet":
         """The default prototype: heavy steering units with the description's ``[body]`` masses."""
         if description is None:
-            return cls.load(resources.files("emulator").joinpath("data/effects/prototype.toml"))
+            return cls.example("prototype")
         bd = description.body
         return cls([HeavySteeringUnits(steering_unit_mass=bd.steering_unit_mass,
                                        wheel_mass=bd.wheel_mass)], "prototype")
+
+    @classmethod
+    def example(cls, name: str) -> "EffectSet":
+        """The shipped example file ``emulator/data/effects/<name>.toml``: one effect at a realistic high
+        magnitude (``<effect name>``, or ``stribeck_wheels``/``stribeck_steering``), ``ideal`` or
+        ``prototype``."""
+        path = resources.files("emulator").joinpath(f"data/effects/{name}.toml")
+        if not path.is_file():
+            raise EffectsError(f"no shipped effects file {name}.toml")
+        return cls.load(path)
+
+    @classmethod
+    def combine(cls, *sets: "EffectSet") -> "EffectSet":
+        """All effects of ``sets`` together (an effect named twice: the later set's parameters)."""
+        data: dict[str, dict] = {}
+        for effect_set in sets:
+            data.update(effect_set.to_dict())
+        return cls.from_dict(data, " + ".join(s.source for s in sets))
 
     @classmethod
     def load(cls, path) -> "EffectSet":
@@ -140,7 +158,7 @@ def _value(value, spec: Param, where: str):
                                f"got {value!r}")
         return value
     if spec.kind == "vector2":
-        if not isinstance(value, list) or len(value) != 2:
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise EffectsError(f"{where}: must be two numbers [x, y] ({spec.unit}), got {value!r}")
         return tuple(_number(v, where, spec) for v in value)
     return _number(value, where, spec)
