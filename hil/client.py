@@ -105,7 +105,8 @@ class VehicleClient:
         encoder_increments: motor encoder increments per motor revolution (data sheet).
         steering_sensor_bits: resolution of the steering angle sensors (data sheet).
         cycle_time: s, SYNC period T_s (data sheet); written to 0x1006 of every node.
-        record: path of a bus log (``.blf``): every frame in both directions, flushed by :meth:`stop`.
+        record: path of a bus log, or a list of them (``.blf``; ``.log`` = candump ``-L`` format; see
+            :mod:`hil.recorder`): every frame in both directions, flushed by :meth:`stop`.
         drive_eds, encoder_eds: EDS files; their PDO mapping is written to the devices.
         configure_pdos: True: write the EDS PDO configuration by SDO; False: read the devices'.
         timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC.
@@ -125,7 +126,8 @@ class VehicleClient:
     """
 
     def __init__(self, bus: str | can.BusABC = "virtual", *, encoder_increments: int,
-                 steering_sensor_bits: int, cycle_time: float, record: str | Path | None = None,
+                 steering_sensor_bits: int, cycle_time: float,
+                 record: str | Path | list[str | Path] | None = None,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
                  configure_pdos: bool = True, timeout: float = 0.5, boot_timeout: float = 2.0,
                  enable_timeout: float = 1.0):
@@ -134,7 +136,8 @@ class VehicleClient:
         self.encoder_increments = int(encoder_increments)
         self.steering_sensor_bits = int(steering_sensor_bits)
         self.cycle_time = float(cycle_time)
-        self.record = Path(record) if record is not None else None
+        self.record = None if record is None else (
+            Path(record) if isinstance(record, (str, Path)) else [Path(p) for p in record])
         self.timeout = timeout
         self.boot_timeout = boot_timeout
         self.enable_timeout = enable_timeout

@@ -124,7 +124,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
         if not Path(path).is_file():
             raise FileNotFoundError(f"EDS/DCF file {path} does not exist")
         dictionary = od.import_od(str(path), node_id)
-        values = _values(dictionary)
+        values = reset_values(dictionary)
         if sync_cob_id is None:
             sync_cob_id = values.get((0x1005, 0), SYNC_COB_ID) & 0x7FF
         messages += _pdo_messages(dictionary, values, node_id, name, path)
@@ -175,7 +175,7 @@ def _per_node(files, count: int, what: str) -> list:
     return files
 
 
-def _values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
+def reset_values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
     """(index, subindex) → value after reset: DCF ParameterValue, else EDS DefaultValue."""
     values = {}
     for obj in dictionary.values():
@@ -186,10 +186,10 @@ def _values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
     return values
 
 
-def _pdo_messages(dictionary, values, node_id: int, name: str, path) -> list[Message]:
-    messages = []
-    period_us = values.get((0x1006, 0), 0)
-    for kind, base, receive in (("RPDO", 0x1400, True), ("TPDO", 0x1800, False)):
+def enabled_pdos(dictionary: od.ObjectDictionary, values: dict):
+    """The PDOs a node uses: ``(receive, n, comm_index, cob_id, count)`` for every RPDO (receive True)
+    then TPDO whose COB-ID is valid (bit 31 clear) and whose mapping has entries; ``n`` is 0-based."""
+    for base, receive in ((0x1400, True), (0x1800, False)):
         for n in range(512):
             comm = base + n
             if comm not in dictionary:
@@ -198,33 +198,41 @@ def _pdo_messages(dictionary, values, node_id: int, name: str, path) -> list[Mes
             count = values.get((comm + 0x200, 0), 0)
             if cob_id & _COB_ID_INVALID or comm + 0x200 not in dictionary or not count:
                 continue
-            where = f"node {node_id} ({name}) {kind}{n + 1} in {Path(path).name}"
-            try:
-                entries = [values[(comm + 0x200, s)] for s in range(1, count + 1)]
-                codec = build_codec(dictionary, entries, receive)      # the nodes' own validation
-            except KeyError:
-                raise PdoMappingError(f"{where}: mapping has {count} entries but not all are defined") \
-                    from None
-            except PdoMappingError as exc:
-                raise PdoMappingError(f"{where}: {exc}", exc.code) from None
-            signals, start, used = [], 0, set()
-            for entry in entries:
-                index, subindex, bits = decode_entry(entry)
-                _, _, fmt = check_entry(dictionary, entry, receive)
-                if fmt[0] != "x":
-                    signals.append(_signal(dictionary, index, subindex, bits, start, name, used,
-                                           receivers=[name] if receive else [MASTER]))
-                start += bits
-            trans_type = values.get((comm, 2), 255)
-            cycle_ms = None
-            if 1 <= trans_type <= 240 and period_us and (trans_type * period_us) % 1000 == 0:
-                cycle_ms = trans_type * period_us // 1000
-            extended = bool(cob_id & _COB_ID_EXTENDED)
-            messages.append(Message(
-                frame_id=cob_id & (0x1FFFFFFF if extended else 0x7FF), name=f"{name}_{kind}{n + 1}",
-                length=codec.size, signals=signals, senders=[MASTER if receive else name],
-                is_extended_frame=extended, cycle_time=cycle_ms,
-                comment=f"node {node_id} ({name}) {kind}{n + 1}, transmission type {trans_type}"))
+            yield receive, n, comm, cob_id, count
+
+
+def _pdo_messages(dictionary, values, node_id: int, name: str, path) -> list[Message]:
+    messages = []
+    period_us = values.get((0x1006, 0), 0)
+    for receive, n, comm, cob_id, count in enabled_pdos(dictionary, values):
+        kind = "RPDO" if receive else "TPDO"
+        where = f"node {node_id} ({name}) {kind}{n + 1} in {Path(path).name}"
+        try:
+            entries = [values[(comm + 0x200, s)] for s in range(1, count + 1)]
+            codec = build_codec(dictionary, entries, receive)      # the nodes' own validation
+        except KeyError:
+            raise PdoMappingError(f"{where}: mapping has {count} entries but not all are defined") \
+                from None
+        except PdoMappingError as exc:
+            raise PdoMappingError(f"{where}: {exc}", exc.code) from None
+        signals, start, used = [], 0, set()
+        for entry in entries:
+            index, subindex, bits = decode_entry(entry)
+            _, _, fmt = check_entry(dictionary, entry, receive)
+            if fmt[0] != "x":
+                signals.append(_signal(dictionary, index, subindex, bits, start, name, used,
+                                       receivers=[name] if receive else [MASTER]))
+            start += bits
+        trans_type = values.get((comm, 2), 255)
+        cycle_ms = None
+        if 1 <= trans_type <= 240 and period_us and (trans_type * period_us) % 1000 == 0:
+            cycle_ms = trans_type * period_us // 1000
+        extended = bool(cob_id & _COB_ID_EXTENDED)
+        messages.append(Message(
+            frame_id=cob_id & (0x1FFFFFFF if extended else 0x7FF), name=f"{name}_{kind}{n + 1}",
+            length=codec.size, signals=signals, senders=[MASTER if receive else name],
+            is_extended_frame=extended, cycle_time=cycle_ms,
+            comment=f"node {node_id} ({name}) {kind}{n + 1}, transmission type {trans_type}"))
     return messages
 
 

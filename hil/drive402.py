@@ -268,6 +268,10 @@ class Drive402(Node301):
         self.values[(0x603F, 0)] = 0
         self._set_state(S.SWITCH_ON_DISABLED)          # transition 1, automatic
 
+    def on_power_off(self):
+        self.applied_torque = 0
+        self._set_state(S.NOT_READY_TO_SWITCH_ON)
+
     def on_leave_operational(self):
         if self.state is S.OPERATION_ENABLED:
             self._abort_connection(EMCY_COMMUNICATION)

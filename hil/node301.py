@@ -199,6 +199,7 @@ class Node301(canopen.LocalNode):
         self._rpdo_lost = False
         self._heartbeat_lost = False
         self._consumers: dict[int, list] = {}       # producer id → [timeout s, last heartbeat | None]
+        self.powered = True
         self._compile_pdos()
         self._compile_consumers()
 
@@ -320,11 +321,30 @@ class Node301(canopen.LocalNode):
         with self.lock:
             self.nmt.stop_heartbeat()
 
+    def power_off(self) -> None:
+        """Lose power (fault injection): silent on the bus, deaf to every frame, until :meth:`power_on`."""
+        with self.lock:
+            self.nmt.stop_heartbeat()
+            if self.nmt_state == OPERATIONAL:
+                self._leave_operational()
+            self.nmt._state = INITIALISING
+            self.powered = False
+            self.on_power_off()
+
+    def power_on(self) -> None:
+        """Power returns: the node boots like at power-on (defaults, boot-up message, PRE-OPERATIONAL)."""
+        with self.lock:
+            self.powered = True
+            self.boot(application=True)
+
+    def on_power_off(self) -> None:
+        """Hook: the node lost power (its outputs go dead)."""
+
     def _on_nmt_command(self, data) -> None:
         if len(data) != 2:
             return
         command, node_id = data[0], data[1]
-        if node_id not in (0, self.id):
+        if node_id not in (0, self.id) or not self.powered:
             return
         with self.lock:
             if command == NMT_RESET_NODE:

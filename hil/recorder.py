@@ -1,9 +1,15 @@
-"""Whole-bus recording: every frame the master receives and every frame it sends, to a log file.
+"""Whole-bus recording: every frame the master receives and every frame it sends, to log files; and
+replay of a log onto a bus.
 
 A :class:`can.Listener` for the master's :class:`can.Notifier` (received frames) that the master also
-calls for each frame it transmits (python-can buses do not hand own frames to notifiers). The writer
-is :class:`can.BLFWriter` for ``.blf`` (Vector tools replay it); python-can's other log formats
-(``.asc``, ``.log``, ``.csv``, …) are chosen by suffix through :class:`can.Logger`.
+calls for each frame it transmits (python-can buses do not hand own frames to notifiers). One recorder
+writes one or several files at once; the suffix picks the format: :class:`can.BLFWriter` for ``.blf``
+(Vector tools replay it), candump ``-L`` format for ``.log`` (:class:`can.CanutilsLogWriter`; can-utils'
+``canplayer`` and ``log2asc`` read it), and python-can's other formats (``.asc``, ``.csv``, ``.trc``, …)
+through :class:`can.Logger`.
+
+:func:`replay` sends a recorded log onto a bus with its original timing (:class:`can.LogReader`,
+:class:`can.MessageSync`).
 """
 from __future__ import annotations
 
@@ -11,6 +17,7 @@ import logging
 import threading
 import time
 from pathlib import Path
+from typing import Callable, Sequence
 
 import can
 
@@ -21,19 +28,31 @@ class BusRecorder(can.Listener):
     """Thread-safe log writer for frames in both directions.
 
     Args:
-        path: log file; the suffix selects the format (``.blf`` → :class:`can.BLFWriter`).
+        path: log file, or several (each gets every frame); the suffix selects the format (module
+            docstring).
         channel: log channel number written for every frame.
     Raises:
         ValueError: unknown suffix (from :class:`can.Logger`).
     Attributes:
+        path: the first log file; paths: all of them.
         frames: number of frames written so far.
         errors: number of frames the writer failed on.
     """
 
-    def __init__(self, path: str | Path, channel: int = 1):
-        self.path = Path(path)
+    def __init__(self, path: str | Path | Sequence[str | Path], channel: int = 1):
+        self.paths = [Path(p) for p in ([path] if isinstance(path, (str, Path)) else path)]
+        if not self.paths:
+            raise ValueError("BusRecorder needs at least one log file")
+        self.path = self.paths[0]
         self.channel = channel
-        self._writer = can.BLFWriter(self.path) if self.path.suffix.lower() == ".blf" else can.Logger(self.path)
+        self._writers = []
+        try:
+            for p in self.paths:
+                self._writers.append(can.BLFWriter(p) if p.suffix.lower() == ".blf" else can.Logger(p))
+        except BaseException:
+            for writer in self._writers:
+                writer.stop()
+            raise
         self._lock = threading.Lock()
         self._open = True
         self.frames = 0
@@ -49,7 +68,8 @@ class BusRecorder(can.Listener):
             # channel name (e.g. digits of a virtual channel), which need not fit the format.
             original, msg.channel = msg.channel, self.channel
             try:
-                self._writer.on_message_received(msg)
+                for writer in self._writers:
+                    writer.on_message_received(msg)
                 self.frames += 1
             except Exception:                      # noqa: BLE001
                 self.errors += 1
@@ -69,4 +89,37 @@ class BusRecorder(can.Listener):
         with self._lock:
             if self._open:
                 self._open = False
-                self._writer.stop()
+                for writer in self._writers:
+                    writer.stop()
+
+
+def replay(path: str | Path, bus: can.BusABC, *, realtime: bool = True, skip: float = 60.0,
+           only: Callable[[can.Message], bool] | None = None) -> int:
+    """Send every frame of a log onto ``bus``, in order.
+
+    Args:
+        path: log file (any format of :class:`can.LogReader`).
+        bus: an open python-can bus.
+        realtime: keep the recorded gaps between frames (:class:`can.MessageSync`); False: as fast as
+            the bus takes them.
+        skip: s, recorded gaps longer than this are shortened to it (idle phases).
+        only: optional filter; frames for which it returns False are not sent.
+    Returns:
+        Number of frames sent.
+    Raises:
+        FileNotFoundError: no such log. ValueError: unknown log format. can.CanError: the bus refused a
+            frame.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"log file {path} does not exist")
+    reader = can.LogReader(str(path))
+    frames = can.MessageSync(reader, timestamps=True, skip=skip) if realtime else reader
+    sent = 0
+    for msg in frames:
+        if msg.is_error_frame or (only is not None and not only(msg)):
+            continue
+        msg.channel = None
+        bus.send(msg)
+        sent += 1
+    return sent

@@ -1,8 +1,9 @@
-"""The vehicle's CANopen network around a plant: 4 CiA 402 drives + 2 CiA 406 encoders, lock-step on SYNC.
+"""The vehicle's CANopen network around a plant: 4 CiA 402 drives + 2 CiA 406 encoders, lock-step on SYNC
+or in real time.
 
 Node IDs (docs/conventions.md): 1…4 drives fl, rl, fr, rr; 5, 6 steering encoders left, right.
 
-Lock-step (deterministic, faster than real time): on every SYNC frame, in the receive thread,
+Lock-step (default; deterministic, faster than real time): on every SYNC frame, in the receive thread,
 
 1. every node applies the RPDOs received since the last SYNC (controlword, target torque);
 2. every drive latches its target torque → ``plant.set_motor_torques(per_mille · 0x6076 / 10⁶)`` [N m
@@ -13,6 +14,18 @@ Lock-step (deterministic, faster than real time): on every SYNC frame, in the re
 5. ``plant.step(cycle_time)`` advances the physics by one cycle.
 
 The physics advances only on SYNC, so N SYNCs are exactly N·T_s of plant time, whatever the wall clock.
+
+Real time (``realtime=True``, for an external master with its own clock): the plant advances by T_s
+per T_s of wall time since :meth:`VehicleServer.start` (tick k is due at t₀ + k·T_s), whether SYNCs
+come or not. A SYNC runs steps 1–4 and then the physics ticks that are due, so that the next SYNC
+finds the physics idle; a pacing thread runs the due ticks when SYNCs are missing. A tick run more
+than one cycle after it was due is counted in :attr:`TimingStats.physics_late`. Python's thread switch
+interval is lowered to 0.2 ms while a real-time server runs (a waiting receive thread otherwise waits
+up to 5 ms for the GIL).
+
+Timing statistics (:attr:`VehicleServer.stats`): per SYNC, the latency from the SYNC frame's timestamp
+(python-can ``Message.timestamp``, the bus's receive time) to the moment the last TPDO of that SYNC was
+handed to the bus; a cycle is late if that latency exceeds ``deadline`` (default T_s/2).
 A watchdog thread supervises SYNC/RPDO reception (see ``hil.node301``); a drive that loses its master
 reacts per 0x6007 and its torque is set to 0 at once.
 
@@ -28,8 +41,10 @@ The plant is duck-typed (this module does not import ``emulator``)::
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
+from array import array
 from pathlib import Path
 
 import can
@@ -39,9 +54,71 @@ import numpy as np
 from .bus import open_bus
 from .drive402 import Drive402
 from .encoder406 import Encoder406
+from .faults import EMCY_BUS_OFF_RECOVERED, FaultInjector, FaultPlan, FaultyBus
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 
 logger = logging.getLogger(__name__)
+
+
+#: Python thread switch interval [s] while a real-time server runs.
+REALTIME_SWITCH_INTERVAL = 0.0002
+#: Real time: a physics more than this many ticks behind the wall clock skips ahead.
+RESYNC_TICKS = 50
+
+
+class TimingStats:
+    """Latency of the emulator's answers to SYNC, and late cycles.
+
+    Args:
+        cycle_time: s, T_s.
+        deadline: s, a SYNC whose last TPDO leaves later than this is a late cycle.
+    Attributes:
+        latencies: s per processed SYNC (``array('d')``).
+        late: SYNCs answered after ``deadline``.
+        physics_late: real-time physics ticks started more than one cycle behind the wall clock.
+    """
+
+    def __init__(self, cycle_time: float, deadline: float):
+        self.cycle_time = cycle_time
+        self.deadline = deadline
+        self.latencies = array("d")
+        self.late = 0
+        self.physics_late = 0
+        self.physics_ticks = 0
+
+    def record(self, latency: float) -> None:
+        """Add one SYNC's latency [s]."""
+        self.latencies.append(latency)
+        if latency > self.deadline:
+            self.late += 1
+
+    def summary(self) -> dict:
+        """{'cycles', 'latency_median', 'latency_p99', 'latency_max' (s), 'late', 'late_fraction',
+        'deadline' (s), 'physics_ticks', 'physics_late'}; latencies are None before the first SYNC."""
+        n = len(self.latencies)
+        out = {"cycles": n, "deadline": self.deadline, "late": self.late,
+               "late_fraction": self.late / n if n else 0.0, "physics_ticks": self.physics_ticks,
+               "physics_late": self.physics_late}
+        if n:
+            lat = np.frombuffer(self.latencies, dtype=float)
+            out.update(latency_median=float(np.median(lat)), latency_p99=float(np.percentile(lat, 99)),
+                       latency_max=float(lat.max()))
+        else:
+            out.update(latency_median=None, latency_p99=None, latency_max=None)
+        return out
+
+    def report(self) -> str:
+        """One human-readable paragraph of :meth:`summary` (µs)."""
+        s = self.summary()
+        if not s["cycles"]:
+            return "no SYNC received"
+        text = (f"{s['cycles']} SYNCs; SYNC-to-last-TPDO latency median {s['latency_median'] * 1e6:.0f} µs, "
+                f"p99 {s['latency_p99'] * 1e6:.0f} µs, max {s['latency_max'] * 1e6:.0f} µs; late cycles "
+                f"(> {s['deadline'] * 1e6:.0f} µs) {s['late']} ({100 * s['late_fraction']:.2f} %)")
+        if s["physics_ticks"]:
+            text += (f"; physics ticks {s['physics_ticks']}, more than a cycle late {s['physics_late']} "
+                     f"({100 * s['physics_late'] / s['physics_ticks']:.2f} %)")
+        return text
 
 
 class VehicleServer:
@@ -55,10 +132,15 @@ class VehicleServer:
             PDO mapping changes what the nodes send.
         sync_timeout: s, SYNC loss time of the nodes (at least 5·0x1006); ``None`` disables it.
         watchdog_period: s, how often SYNC/RPDO reception is checked.
+        realtime: physics paced by the wall clock instead of one step per SYNC (module docstring).
+        deadline: s, latency above which a SYNC counts as late (default T_s/2).
+        faults: a :class:`hil.faults.FaultPlan` injected on the emulator's side of the bus.
     Attributes:
         drives: the four :class:`~hil.drive402.Drive402` (fl, rl, fr, rr).
         encoders: the two :class:`~hil.encoder406.Encoder406` (left, right).
-        cycles: number of SYNCs processed (= plant steps).
+        cycles: number of SYNCs processed (= plant steps in lock-step).
+        stats: :class:`TimingStats`.
+        injector: the :class:`hil.faults.FaultInjector` (``faults`` given), else None.
         error: the exception that stopped SYNC processing, if any (the plant raised); later SYNCs
             are ignored, so the master times out.
     Raises:
@@ -67,7 +149,8 @@ class VehicleServer:
 
     def __init__(self, plant, bus: can.BusABC | str = "virtual", *,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
-                 sync_timeout: float | None = 0.1, watchdog_period: float = 0.02):
+                 sync_timeout: float | None = 0.1, watchdog_period: float = 0.02,
+                 realtime: bool = False, deadline: float | None = None, faults: FaultPlan | None = None):
         self.plant = plant
         data = plant.description.drive
         self.cycle_time = float(data.cycle_time)
@@ -91,6 +174,11 @@ class VehicleServer:
         for e in self.encoders:
             e.set_resolution(self._sensor_bits)
         self.cycles = 0
+        self.realtime = bool(realtime)
+        self.stats = TimingStats(self.cycle_time, self.cycle_time / 2 if deadline is None else deadline)
+        self.faults = faults
+        self.injector: FaultInjector | None = None
+        self._physics: threading.Thread | None = None
         self.error: BaseException | None = None
         self.network: canopen.Network | None = None
         self._watchdog_period = watchdog_period
@@ -109,6 +197,12 @@ class VehicleServer:
         if self.network is not None:
             raise RuntimeError("server already started")
         bus = open_bus(self._bus_arg) if self._own_bus else self._bus_arg
+        if self.faults is not None:
+            self.injector = FaultInjector(self.faults, lambda: self.cycles * self.cycle_time)
+            self.injector.on_power_off = self._power_off
+            self.injector.on_power_on = self._power_on
+            self.injector.on_bus_off_recovered = self._bus_off_recovered
+            bus = FaultyBus(bus, self.injector, own_bus=self._own_bus)
         network = canopen.Network(bus)
         network.NOTIFIER_CYCLE = 0.05      # short receive timeout: stop() returns quickly
         for node in self.nodes:
@@ -121,6 +215,13 @@ class VehicleServer:
         self._stop_event.clear()
         self._watchdog = threading.Thread(target=self._watch, name="hil-server-watchdog", daemon=True)
         self._watchdog.start()
+        if self.realtime:
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(REALTIME_SWITCH_INTERVAL)
+            self._t0 = time.perf_counter()
+            self._physics = threading.Thread(target=self._pace_physics, name="hil-server-physics",
+                                             daemon=True)
+            self._physics.start()
         return self
 
     def stop(self) -> None:
@@ -131,14 +232,18 @@ class VehicleServer:
         self._stop_event.set()
         if self._watchdog is not None:
             self._watchdog.join()
+        if self._physics is not None:
+            self._physics.join()
+            self._physics = None
+            sys.setswitchinterval(self._switch_interval)
         for node in self.nodes:
             node.shutdown()
         if network.notifier is not None:
             network.notifier.stop(1.0)
         for node_id in list(network):
             del network[node_id]
-        if self._own_bus:
-            network.bus.shutdown()
+        if self._own_bus or self.injector is not None:
+            network.bus.shutdown()                 # a FaultyBus closes the real bus only if owned
 
     def __enter__(self) -> "VehicleServer":
         return self.start()
@@ -157,6 +262,12 @@ class VehicleServer:
         try:
             with self._lock:
                 self._sync()
+                latency = time.time() - timestamp
+                if not 0.0 <= latency < 10.0:      # interface without usable receive timestamps
+                    latency = 0.0
+                self.stats.record(latency)
+            if self.injector is not None:
+                self.injector.poll()
         except Exception as exc:          # noqa: BLE001 - canopen would swallow it silently
             self.error = exc
             logger.exception("SYNC processing failed; the server ignores further SYNCs")
@@ -181,19 +292,88 @@ class VehicleServer:
             encoder.set_position(int(steering[j]))
         for node in self.nodes:
             node.sync_transmit()
-        self.plant.step(self.cycle_time)
         self.cycles += 1
+        if not self.realtime:
+            self.plant.step(self.cycle_time)
+        else:
+            self._run_due_ticks()
+
+    def _run_due_ticks(self) -> None:
+        """Real time (lock held): step the plant once per tick that is due by the wall clock."""
+        period, stats = self.cycle_time, self.stats
+        elapsed = time.perf_counter() - self._t0
+        due = int(elapsed / period) - stats.physics_ticks
+        if due > RESYNC_TICKS:                     # hopelessly behind (machine suspended): skip ahead
+            logger.warning("real-time physics %d cycles behind the wall clock; skipping ahead", due)
+            stats.physics_late += due
+            stats.physics_ticks += due - 1
+            due = 1
+        for _ in range(max(0, due)):
+            if elapsed - stats.physics_ticks * period > 2 * period:   # tick k due at k·T_s, run > T_s late
+                stats.physics_late += 1
+            self.plant.step(period)
+            stats.physics_ticks += 1
+
+    def _pace_physics(self) -> None:
+        """Real time: run the due physics ticks when no SYNC did (the master is silent or slow)."""
+        period = self.cycle_time
+        while not self._stop_event.is_set():
+            elapsed = time.perf_counter() - self._t0
+            time.sleep(max(0.0, (int(elapsed / period) + 1.5) * period - elapsed))  # mid-way between ticks
+            with self._lock:
+                if self.error is not None:
+                    return
+                try:
+                    self._run_due_ticks()
+                except Exception as exc:           # noqa: BLE001
+                    self.error = exc
+                    logger.exception("plant.step failed in real-time mode; physics stopped")
+                    return
+
+    # ------------------------------------------------------------ faults
+    def _node(self, node_id: int):
+        for node in self.nodes:
+            if node.id == node_id:
+                return node
+        logger.warning("fault plan names node %d, which this vehicle does not have", node_id)
+        return None
+
+    def _power_off(self, node_id: int) -> None:
+        node = self._node(node_id)
+        if node is not None:
+            with self._lock:
+                node.power_off()
+                self._apply_drive_torques()
+
+    def _power_on(self, node_id: int) -> None:
+        node = self._node(node_id)
+        if node is not None:
+            node.power_on()
+
+    def _bus_off_recovered(self) -> None:
+        with self._lock:
+            for node in self.nodes:
+                if node.powered:
+                    node.emcy_send(EMCY_BUS_OFF_RECOVERED)
+
+    def _apply_drive_torques(self) -> None:
+        """Hand the drives' applied torques to the plant now (outside a SYNC)."""
+        if self.error is not None:
+            return
+        for i, drive in enumerate(self.drives):
+            self._torque[i] = drive.applied_torque_nm
+        try:
+            self.plant.set_motor_torques(self._torque.copy())
+        except Exception as exc:      # noqa: BLE001
+            self.error = exc
+            logger.exception("plant.set_motor_torques failed outside a SYNC")
 
     def _watch(self) -> None:
         while not self._stop_event.wait(self._watchdog_period):
             now = time.monotonic()
             with self._lock:
                 tripped = [node.check_timeouts(now) for node in self.nodes]
-                if any(tripped[:len(self.drives)]) and self.error is None:
-                    for i, drive in enumerate(self.drives):
-                        self._torque[i] = drive.applied_torque_nm
-                    try:
-                        self.plant.set_motor_torques(self._torque.copy())
-                    except Exception as exc:      # noqa: BLE001
-                        self.error = exc
-                        logger.exception("plant.set_motor_torques failed in the watchdog")
+                if any(tripped[:len(self.drives)]):
+                    self._apply_drive_torques()
+            if self.injector is not None:
+                self.injector.poll()

@@ -310,6 +310,9 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
             console.print(f"hub stopped after {running.frames} frames ({running.dropped} dropped)")
 
 
+from qomni import hil_commands as _hil_commands  # noqa: E402,F401 - registers emulate, decode, replay
+
+
 def main() -> None:  # pragma: no cover
     app()
 

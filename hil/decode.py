@@ -1,0 +1,305 @@
+"""Decode a recorded CAN log of the vehicle into one :class:`~hil.measurement.Measurement` per SYNC.
+
+Works on any log python-can reads (:class:`can.LogReader`: Vector BLF ``.blf`` and ASC ``.asc``,
+candump ``-L`` ``.log``, ``.csv``, PEAK ``.trc``, ``.mf4``), recorded by ``hil.client`` or by other tools,
+with the PDO mapping taken from EDS/DCF files (CiA 306) like the devices do (:mod:`hil.dbc` rules:
+DCF ParameterValue, else EDS DefaultValue, ``$NODEID`` resolved).
+
+Per cycle (CiA 301 SYNC semantics, docs/conventions.md):
+
+* the cycle starts at a SYNC (COB-ID from 0x1005, default 0x80); its TPDOs are the frames of the
+  drives' and encoders' valid TPDOs until the next SYNC;
+* the commanded torque of the cycle is the last target torque 0x6071 each drive received by RPDO
+  before that SYNC (what the drive latched at it);
+* time = k · T_s with k counted from the last NMT start command (0x000, command 1) before the SYNC,
+  as :class:`hil.client.VehicleClient` counts its cycles;
+* units as the client: positions unwrapped across the 32-bit counter (:func:`hil.units.unwrap32`),
+  torques from per mille of the motor rated torque 0x6076. 0x6076 comes from the log itself (an
+  expedited SDO upload response of 0x6076:00, as every master reads it) if present, else from a DCF's
+  ParameterValue, else from the caller (data sheet).
+
+A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeReport.incomplete`).
+"""
+from __future__ import annotations
+
+import itertools
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import can
+import numpy as np
+from canopen import objectdictionary as od
+
+from .dbc import enabled_pdos, reset_values
+from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
+from .measurement import Measurement
+from .pdo_codec import PdoCodec, PdoMappingError, build_codec
+from .units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
+
+_DRIVE_INPUTS = {(0x6041, 0): "status", (0x6064, 0): "position", (0x606C, 0): "velocity",
+                 (0x6077, 0): "torque"}
+_ENCODER_INPUTS = {(0x6004, 0): "counts"}
+_NMT_START = 0x01
+
+
+class DecodeError(ValueError):
+    """The log or the mapping files cannot be decoded: says which file and what is missing."""
+
+
+@dataclass
+class DecodedCycle:
+    """One SYNC of the log: the measurement and the commanded motor torque (4,) [N m motor side]."""
+
+    measurement: Measurement
+    motor_torque_cmd: np.ndarray
+    statusword: tuple
+
+
+@dataclass
+class DecodeReport:
+    """Counts of a decode: frames read, cycles decoded, cycles skipped as incomplete, rated torque used."""
+
+    frames: int = 0
+    cycles: int = 0
+    incomplete: int = 0
+    sessions: int = 0
+    rated_torque: list = field(default_factory=list)
+    rated_torque_source: str = ""
+
+
+@dataclass(frozen=True)
+class _Pdo:
+    node_index: int          # 0..3 drives, 4..5 encoders
+    codec: PdoCodec
+
+
+def node_files(drive_eds: str | Path | Sequence = DRIVE_EDS, encoder_eds: str | Path | Sequence = ENCODER_EDS,
+               dcf: Sequence[str | Path] = (), eds_dir: str | Path | None = None) -> dict[int, Path]:
+    """Node id → EDS/DCF file: defaults, then ``eds_dir`` (``drive402.eds``, ``encoder406.eds`` and any
+    ``*.dcf`` with ``[DeviceComissioning] NodeID``), then each ``dcf`` (its NodeID).
+
+    Raises:
+        DecodeError: a file is missing, or a DCF names no node id of the vehicle (1…6).
+    """
+    files: dict[int, Path] = {}
+    for ids, given in ((DRIVE_NODE_IDS, drive_eds), (ENCODER_NODE_IDS, encoder_eds)):
+        paths = [given] * len(ids) if isinstance(given, (str, Path)) else list(given)
+        if len(paths) != len(ids):
+            raise DecodeError(f"give one EDS/DCF or {len(ids)} (one per node), got {len(paths)}")
+        files.update({i: Path(p) for i, p in zip(ids, paths)})
+    dcfs = [Path(p) for p in dcf]
+    if eds_dir is not None:
+        eds_dir = Path(eds_dir)
+        if not eds_dir.is_dir():
+            raise DecodeError(f"--eds-dir {eds_dir} is not a directory")
+        for name, ids in (("drive402.eds", DRIVE_NODE_IDS), ("encoder406.eds", ENCODER_NODE_IDS)):
+            if (eds_dir / name).is_file():
+                files.update({i: eds_dir / name for i in ids})
+        dcfs = sorted(eds_dir.glob("*.dcf")) + dcfs
+    for path in dcfs:
+        node_id = _dcf_node_id(path)
+        if node_id not in files:
+            raise DecodeError(f"{path}: NodeID {node_id} is not a node of the vehicle "
+                              f"(drives {DRIVE_NODE_IDS}, encoders {ENCODER_NODE_IDS})")
+        files[node_id] = path
+    for node_id, path in files.items():
+        if not path.is_file():
+            raise DecodeError(f"EDS/DCF file {path} of node {node_id} does not exist")
+    return files
+
+
+def _dcf_node_id(path: Path) -> int:
+    import configparser
+
+    if not path.is_file():
+        raise DecodeError(f"DCF file {path} does not exist")
+    parser = configparser.RawConfigParser()
+    parser.optionxform = str
+    try:
+        parser.read(path, encoding="utf-8")
+        return int(parser.get("DeviceComissioning", "NodeID"), 0)
+    except (configparser.Error, ValueError) as exc:
+        raise DecodeError(f"{path}: no [DeviceComissioning] NodeID (needed to know the node): {exc}") from None
+
+
+class _Mapping:
+    """TPDO codecs, RPDO target-torque slots and 0x6076 of all nodes from their EDS/DCF files."""
+
+    def __init__(self, files: dict[int, Path]):
+        self.tpdos: dict[int, tuple[_Pdo, list]] = {}
+        self.rpdo_torque: dict[int, tuple[int, PdoCodec, int]] = {}
+        self.rated_mnm: dict[int, int] = {}
+        self.sync_cob_id = SYNC_COB_ID
+        self.cycle_time_us: int | None = None
+        nodes = list(DRIVE_NODE_IDS) + list(ENCODER_NODE_IDS)
+        for index, node_id in enumerate(nodes):
+            path = files[node_id]
+            try:
+                dictionary = od.import_od(str(path), node_id)
+            except Exception as exc:                 # noqa: BLE001 - canopen raises many kinds
+                raise DecodeError(f"{path}: not a readable EDS/DCF: {exc}") from None
+            values = reset_values(dictionary)
+            if index == 0:
+                self.sync_cob_id = values.get((0x1005, 0), SYNC_COB_ID) & 0x7FF
+                self.cycle_time_us = values.get((0x1006, 0)) or None
+            inputs = _DRIVE_INPUTS if node_id in DRIVE_NODE_IDS else _ENCODER_INPUTS
+            found = set()
+            for receive, n, comm, cob_id, count in enabled_pdos(dictionary, values):
+                try:
+                    codec = build_codec(dictionary, [values[(comm + 0x200, s)] for s in range(1, count + 1)],
+                                        receive)
+                except (KeyError, PdoMappingError) as exc:
+                    raise DecodeError(f"{path}: node {node_id} {'R' if receive else 'T'}PDO{n + 1} "
+                                      f"mapping unusable: {exc}") from None
+                if receive:
+                    if (0x6071, 0) in codec.keys:
+                        self.rpdo_torque[cob_id & 0x7FF] = (index, codec, codec.keys.index((0x6071, 0)))
+                    continue
+                sinks = [(inputs[k], index) if k in inputs else None for k in codec.keys]
+                found.update(k for k in codec.keys if k in inputs)
+                self.tpdos[cob_id & 0x7FF] = (_Pdo(index, codec), sinks)
+            needed = set(inputs) - {(0x6041, 0)} - found
+            if needed:
+                raise DecodeError(f"{path}: node {node_id} maps "
+                                  f"{', '.join(f'0x{k[0]:04X}' for k in sorted(needed))} in no valid TPDO")
+            if node_id in DRIVE_NODE_IDS and dictionary.get(0x6076) is not None and \
+                    dictionary[0x6076].value is not None:
+                self.rated_mnm[node_id] = int(dictionary[0x6076].value)      # a DCF's ParameterValue
+
+
+def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bits: int,
+               cycle_time: float | None = None, rated_torque: Sequence[float] | float | None = None,
+               files: dict[int, Path] | None = None, report: DecodeReport | None = None
+               ) -> Iterator[DecodedCycle]:
+    """Decode a bus log cycle by cycle (module docstring).
+
+    Args:
+        path: the log (any format of :class:`can.LogReader`).
+        encoder_increments: motor encoder increments per revolution (data sheet).
+        steering_sensor_bits: steering sensor resolution (data sheet).
+        cycle_time: s, T_s; default: 0x1006 of the mapping files.
+        rated_torque: N m motor side, one or four (fl, rl, fr, rr): used where neither the log nor a
+            DCF gives 0x6076.
+        files: node id → EDS/DCF (:func:`node_files`); default: the shipped EDS files.
+        report: filled in while decoding.
+    Returns:
+        An iterator of :class:`DecodedCycle`, one per complete SYNC cycle (checks run at once, the
+        log is read while iterating).
+    Raises:
+        FileNotFoundError: no such log. DecodeError: unknown log format, unusable mapping, no 0x6076
+            anywhere, or no T_s.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"log file {path} does not exist")
+    mapping = _Mapping(files if files is not None else node_files())
+    period = cycle_time if cycle_time is not None else (
+        mapping.cycle_time_us * 1e-6 if mapping.cycle_time_us else None)
+    if not period or period <= 0:
+        raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
+    report = report if report is not None else DecodeReport()
+    rated = _rated_torques(path, mapping, rated_torque, report)
+    try:
+        reader = can.LogReader(str(path))
+    except ValueError as exc:
+        raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
+    return _cycles(reader, mapping, period, rated, report, encoder_increments, steering_sensor_bits)
+
+
+def _cycles(reader, mapping, period, rated, report, encoder_increments, steering_sensor_bits):
+    sync_id = mapping.sync_cob_id
+    expected = len(mapping.tpdos)
+    cmd = np.zeros(4)
+    pending_cmd = np.zeros(4)
+    cycle = None          # cycles since NMT start; None before the first start
+    rx: dict[int, bytes] = {}
+    unwrap = None
+    scale_pos = increments_to_rad(1.0, encoder_increments)
+    for msg in itertools.chain(reader, [None]):          # None: the end closes the last cycle
+        if msg is not None:
+            report.frames += 1
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                continue
+        cob = sync_id if msg is None else msg.arbitration_id
+        if cob == sync_id:
+            if cycle is not None and rx:
+                out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, scale_pos,
+                            steering_sensor_bits)
+                if out is None:
+                    report.incomplete += 1
+                else:
+                    decoded, unwrap = out
+                    report.cycles += 1
+                    yield decoded
+            rx = {}
+            cmd = pending_cmd.copy()
+            if cycle is not None:
+                cycle += 1
+        elif cob == 0x000 and len(msg.data) == 2 and msg.data[0] == _NMT_START:
+            if cycle is None or cycle > 0:
+                report.sessions += 1
+            cycle, unwrap, rx = 0, None, {}
+        elif cob in mapping.tpdos:
+            rx[cob] = bytes(msg.data)
+        elif cob in mapping.rpdo_torque:
+            drive, codec, slot = mapping.rpdo_torque[cob]
+            if len(msg.data) >= codec.size:
+                pending_cmd[drive] = codec.unpack(msg.data)[slot] * rated[drive] * 1e-3
+
+
+def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, scale_pos, bits):
+    if len(rx) < expected:
+        return None
+    fields = {"status": [0] * 4, "position": [0] * 4, "velocity": [0] * 4, "torque": [0] * 4, "counts": [0] * 2}
+    for cob, data in rx.items():
+        pdo, sinks = mapping.tpdos[cob]
+        if len(data) < pdo.codec.size:
+            return None
+        for sink, value in zip(sinks, pdo.codec.unpack(data)):
+            if sink is not None:
+                name, index = sink
+                fields[name][index if name != "counts" else index - 4] = value
+    raw = np.array(fields["position"], dtype=np.int64)
+    total = raw if unwrap is None else unwrap32(raw, unwrap[0], unwrap[1])
+    measurement = Measurement(
+        time=k * period,
+        motor_position=total * scale_pos,
+        motor_velocity=np.array(fields["velocity"], dtype=float) * scale_pos,
+        motor_torque=per_mille_to_torque(fields["torque"], rated),
+        alpha=counts_to_alpha(fields["counts"], bits))
+    return DecodedCycle(measurement, cmd.copy(), tuple(fields["status"])), (raw, total)
+
+
+_SDO_UPLOAD_6076 = struct.Struct("<BHBI")
+
+
+def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport) -> np.ndarray:
+    """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``."""
+    seen: dict[int, int] = {}
+    try:
+        for msg in can.LogReader(str(path)):
+            cob = msg.arbitration_id
+            if 0x581 <= cob <= 0x584 and len(msg.data) == 8 and not msg.is_extended_id:
+                command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
+                if command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
+                    seen[cob - 0x580] = value
+    except ValueError as exc:
+        raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
+    out, sources = np.zeros(4), set()
+    fallback = None if given is None else np.broadcast_to(np.asarray(given, dtype=float), (4,))
+    for i, node_id in enumerate(DRIVE_NODE_IDS):
+        if node_id in seen and seen[node_id] > 0:
+            out[i], source = seen[node_id] * 1e-3, "SDO upload of 0x6076 in the log"
+        elif node_id in mapping.rated_mnm and mapping.rated_mnm[node_id] > 0:
+            out[i], source = mapping.rated_mnm[node_id] * 1e-3, "DCF ParameterValue of 0x6076"
+        elif fallback is not None:
+            out[i], source = fallback[i], "data sheet"
+        else:
+            raise DecodeError(f"{path}: motor rated torque 0x6076 of drive {node_id} is neither read in the "
+                              "log nor in a DCF: give the data sheet")
+        sources.add(source)
+    report.rated_torque = out.tolist()
+    report.rated_torque_source = ", ".join(sorted(sources))
+    return out

@@ -1,0 +1,214 @@
+"""``qomni emulate``, ``qomni decode`` and ``qomni replay``: the emulator for external masters, and bus logs.
+
+Registered on the CLI's typer app by :mod:`qomni.cli` (composition root); the work is done in ``hil``.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from qomni.cli import _description, _fail, app, console
+
+
+def _load_or_fail(path: Optional[Path], what: str):
+    """``FaultPlan.load`` (what='faults') or ``EffectSet.load`` (what='effects') of ``path``; None if no
+    path; a bad file ends the command with its message."""
+    if path is None:
+        return None
+    if what == "faults":
+        from hil.faults import FaultPlan as loader, FaultPlanError as error
+    else:
+        from emulator.effects import EffectSet as loader, EffectsError as error
+    try:
+        return loader.load(path)
+    except (error, FileNotFoundError) as exc:
+        _fail(str(exc))
+
+
+@app.command()
+def emulate(
+    bus: str = typer.Option(..., help="Bus to serve the vehicle on: 'socketcan:vcan0', "
+                            "'socketcand:127.0.0.1:PORT/can0' (a 'qomni hub'), 'pcan:…'."),
+    vehicle: Optional[Path] = typer.Option(None, help="Vehicle description TOML; default: the prototype."),
+    realtime: bool = typer.Option(False, help="Physics paced by the wall clock (the master's SYNC only "
+                                  "samples). Default: lock-step, one physics cycle per SYNC."),
+    effects: Optional[Path] = typer.Option(None, help="Effects file (TOML) on top of the ideal vehicle; "
+                                           "default: the prototype as described."),
+    seed: int = typer.Option(0, help="Seed of the emulator's sensor noise."),
+    faults: Optional[Path] = typer.Option(None, help="Fault plan (TOML, see hil/faults.py): frame loss, "
+                                          "latency, power cycles, bus-off, SYNC loss."),
+    duration: Optional[float] = typer.Option(None, help="Stop after this many seconds of wall time "
+                                             "(default: until Ctrl-C)."),
+    deadline: Optional[float] = typer.Option(None, help="s; a SYNC answered later counts as a late "
+                                             "cycle (default T_s/2)."),
+    sync_timeout: float = typer.Option(0.1, help="s without SYNC after which enabled drives fault (0x6007)."),
+    lifted: bool = typer.Option(False, help="Chassis jacked up, wheels free."),
+):
+    """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
+    from emulator.vehicle import Emulator
+    from hil.bus import parse_bus_spec
+    from hil.server import VehicleServer
+
+    try:
+        parse_bus_spec(bus)
+    except ValueError as exc:
+        _fail(str(exc))
+    if duration is not None and not duration > 0:
+        _fail(f"--duration must be > 0 s, got {duration}")
+    plan = _load_or_fail(faults, "faults")
+    description = _description(vehicle)
+    kwargs = {} if effects is None else {"effects": _load_or_fail(effects, "effects")}
+    emulator = Emulator(description, seed=seed, lifted=lifted, **kwargs)
+    server = VehicleServer(emulator, bus, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
+                           faults=plan)
+    try:
+        try:
+            server.start()
+        except Exception as exc:                                    # noqa: BLE001 - say what and where
+            _fail(f"cannot open bus {bus!r}: {exc}")
+        console.print(f"emulating '{description.name}' on {bus} ({'real time' if realtime else 'lock-step'}, "
+                      f"T_s = {server.cycle_time * 1e3:g} ms): drives 1-4 (fl, rl, fr, rr), encoders 5, 6; "
+                      + ("Ctrl-C stops" if duration is None else f"for {duration:g} s"))
+        end = None if duration is None else time.monotonic() + duration
+        try:
+            while end is None or time.monotonic() < end:
+                time.sleep(0.05 if end is None else max(0.0, min(0.05, end - time.monotonic())))
+                if server.error is not None:
+                    break
+        except KeyboardInterrupt:
+            pass
+    finally:
+        server.stop()
+        emulator.close()
+    console.print(server.stats.report())
+    if server.injector is not None:
+        c = server.injector.counters
+        console.print(f"faults: frames lost rx {c.lost_rx} / tx {c.lost_tx}, SYNC dropped {c.sync_dropped}, "
+                      f"dropped in bus-off {c.bus_off_dropped}, delayed {c.delayed}, power cycles "
+                      f"{c.power_cycles}, bus-offs {c.bus_offs}, SYNC losses {c.sync_losses}")
+    if server.error is not None:
+        _fail(f"the emulator stopped: {server.error}")
+
+
+@app.command()
+def decode(
+    log: Path = typer.Argument(..., help="Bus log: .blf, .asc, .log (candump -L), .csv, .trc, .mf4."),
+    out: Path = typer.Option(..., "--out", help="Run directory to create (signals.csv, metadata.json)."),
+    metadata: Optional[Path] = typer.Option(None, help="metadata.json of the recorded run: data sheet and "
+                                            "campaign segments (step names), so 'qomni identify' can use it."),
+    datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML (without --metadata; default: "
+                                             "the prototype's)."),
+    eds_dir: Optional[Path] = typer.Option(None, help="Directory with drive402.eds / encoder406.eds and/or "
+                                           "per-node *.dcf ([DeviceComissioning] NodeID)."),
+    drive_eds: Optional[Path] = typer.Option(None, help="EDS/DCF of all four drives (default: hil's)."),
+    encoder_eds: Optional[Path] = typer.Option(None, help="EDS/DCF of both encoders (default: hil's)."),
+    dcf: Optional[List[Path]] = typer.Option(None, help="DCF of one node (repeatable)."),
+):
+    """Decode a recorded bus log (ours or another tool's) with the EDS/DCF PDO mapping into a run directory."""
+    import json
+
+    from hil.decode import DecodeError, DecodeReport, decode_log, node_files
+    from hil.layout import DRIVE_EDS, ENCODER_EDS
+    from ident.campaign import METADATA, SIGNALS
+    from ident.datasheet import DataSheet, DataSheetError
+    from ident.identify import RunDirectoryError, datasheet_from_metadata
+    from ident.recording import SignalWriter
+
+    if (out / SIGNALS).exists():
+        _fail(f"{out / SIGNALS} exists; choose a new --out")
+    meta: dict = {}
+    try:
+        if metadata is not None:
+            meta = json.loads(metadata.read_text())
+            sheet = datasheet_from_metadata(meta, str(metadata))
+        else:
+            sheet = DataSheet.load(datasheet)
+    except (OSError, ValueError, DataSheetError, RunDirectoryError) as exc:
+        _fail(f"{metadata or datasheet}: {exc}")
+    segments = [s for s in meta.get("segments", []) if {"name", "k", "t_start", "t_end"} <= set(s)]
+    drive = sheet.drive
+    report = DecodeReport()
+    try:
+        files = node_files(drive_eds or DRIVE_EDS, encoder_eds or ENCODER_EDS, dcf or (), eds_dir)
+        cycles = decode_log(log, encoder_increments=drive.encoder_increments,
+                            steering_sensor_bits=drive.steering_sensor_bits, cycle_time=drive.cycle_time,
+                            rated_torque=drive.rated_torque, files=files, report=report)
+        out.mkdir(parents=True, exist_ok=True)
+        rows, eps = 0, 1e-9
+        with SignalWriter(out / SIGNALS) as writer:
+            for cycle in cycles:
+                t = cycle.measurement.time
+                if segments:
+                    seg = next((s for s in segments if s["t_start"] + eps < t <= s["t_end"] + eps), None)
+                    if seg is None:
+                        continue
+                    name, k = seg["name"], seg["k"]
+                else:
+                    name, k = "recorded", 0
+                writer.write(name, k, cycle.measurement, cycle.motor_torque_cmd)
+                rows += 1
+    except (DecodeError, FileNotFoundError) as exc:
+        _fail(str(exc))
+    if rows == 0:
+        _fail(f"{log}: no complete SYNC cycle decoded ({report.frames} frames, {report.incomplete} "
+              "incomplete cycles); wrong EDS/DCF mapping or not a log of this vehicle?")
+    if not meta:
+        from dataclasses import asdict
+
+        meta = {"format": "qomni-run/1", "vehicle": sheet.name,
+                "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
+                              "nominal": asdict(sheet.nominal)}, "segments": []}
+    meta = dict(meta, source=f"decoded from {log}", decoded={
+        "log": str(log), "frames": report.frames, "cycles": report.cycles, "rows": rows,
+        "incomplete_cycles": report.incomplete, "sessions": report.sessions,
+        "rated_torque": {"value": report.rated_torque, "unit": "N m", "source": report.rated_torque_source},
+        "mapping": {str(k): str(v) for k, v in files.items()}})
+    (out / METADATA).write_text(json.dumps(meta, indent=2))
+    console.print(f"decoded {report.cycles} cycles ({report.incomplete} incomplete skipped) from "
+                  f"{report.frames} frames into {out / SIGNALS}: {rows} rows"
+                  + ("" if segments else "; no --metadata segments, so every row is step 'recorded' "
+                     "(qomni identify needs the campaign's step names)"))
+
+
+_MASTER_FUNCTIONS = {0x0, 0x4, 0x6, 0x8, 0xA, 0xC}      # NMT, RPDO1…4, SDO request (COB-ID >> 7)
+
+
+def _sent_by_master(msg) -> bool:
+    """CiA 301 pre-defined connection set: NMT, SYNC, RPDOs and SDO requests come from the master."""
+    cob = msg.arbitration_id
+    return not msg.is_extended_id and (cob == 0x80 or (cob >> 7) in _MASTER_FUNCTIONS)
+
+
+@app.command()
+def replay(
+    log: Path = typer.Argument(..., help="Bus log: .blf, .asc, .log (candump -L), .csv, .trc, .mf4."),
+    bus: str = typer.Option(..., help="Bus to replay onto, e.g. 'socketcan:vcan0' or "
+                            "'socketcand:127.0.0.1:PORT/can0'."),
+    fast: bool = typer.Option(False, help="As fast as the bus takes the frames (default: recorded timing)."),
+    master_only: bool = typer.Option(False, help="Replay only the master's frames (NMT, SYNC, RPDO, SDO "
+                                     "requests), e.g. to drive an emulator or a real vehicle again."),
+):
+    """Replay a recorded log onto a bus (python-can LogReader + MessageSync)."""
+    from hil.bus import open_bus
+    from hil.recorder import replay as replay_log
+
+    try:
+        target = open_bus(bus)
+    except (ValueError, OSError) as exc:
+        _fail(f"cannot open bus {bus!r}: {exc}")
+    except Exception as exc:                                         # noqa: BLE001 - can.CanError & co
+        _fail(f"cannot open bus {bus!r}: {exc}")
+    started = time.perf_counter()
+    try:
+        sent = replay_log(log, target, realtime=not fast, only=_sent_by_master if master_only else None)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        sent = None
+    finally:
+        target.shutdown()
+    if sent is not None:
+        console.print(f"replayed {sent} frames from {log} onto {bus} in {time.perf_counter() - started:.1f} s")

@@ -1,0 +1,130 @@
+"""Recording (BLF + candump -L), decoding a log into a run directory, and replay onto a bus."""
+from __future__ import annotations
+
+import json
+import time
+import uuid
+from dataclasses import asdict, replace
+
+import can
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hil.client import VehicleClient
+from hil.decode import DecodeError, DecodeReport, decode_log, node_files
+from hil.recorder import replay
+from hil.server import VehicleServer
+from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+
+N_CYCLES = 40
+
+
+def torques(k):
+    return np.array([0.5 * np.sin(k / 4), -0.3, 0.8 * np.cos(k / 7), 0.01 * k])
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """One lock-step session recorded in both formats; the client's measurements as reference."""
+    tmp = tmp_path_factory.mktemp("rec")
+    spec = f"virtual:hil-decode-{uuid.uuid4().hex[:8]}"
+    plant = FakePlant()
+    logs = [tmp / "bus.blf", tmp / "bus.log"]
+    reference = []
+    with VehicleServer(plant, spec), VehicleClient(spec, encoder_increments=INCREMENTS,
+                                                   steering_sensor_bits=BITS, cycle_time=T_S,
+                                                   record=logs) as client:
+        for k in range(N_CYCLES):
+            reference.append((client.exchange(torques(k)), torques(k)))
+    return tmp, logs, reference, plant
+
+
+def test_candump_log_is_candump_format(session):
+    _, logs, _, _ = session
+    first = logs[1].read_text().splitlines()[0]
+    assert first.startswith("(") and "#" in first                     # "(1700000000.000000) vcan0 701#00"
+    assert len(list(can.LogReader(str(logs[0])))) == len(list(can.LogReader(str(logs[1]))))
+
+
+@pytest.mark.parametrize("which", [0, 1], ids=["blf", "candump"])
+def test_decode_reproduces_the_client_measurements(session, which):
+    _, logs, reference, _ = session
+    report = DecodeReport()
+    cycles = list(decode_log(logs[which], encoder_increments=INCREMENTS, steering_sensor_bits=BITS,
+                             cycle_time=T_S, report=report))
+    assert report.cycles == N_CYCLES and report.incomplete == 0 and report.sessions == 1
+    assert report.rated_torque == [2.0] * 4 and "SDO upload" in report.rated_torque_source
+    for cycle, (m, cmd) in zip(cycles, reference):
+        d = cycle.measurement
+        assert d.time == pytest.approx(m.time)
+        np.testing.assert_allclose(d.motor_position, m.motor_position, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(d.motor_velocity, m.motor_velocity, rtol=1e-12)
+        np.testing.assert_allclose(d.motor_torque, m.motor_torque, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(d.alpha, m.alpha)
+        np.testing.assert_allclose(cycle.motor_torque_cmd, np.clip(cmd, -6, 6), atol=0.5e-3 * 2.0)
+        assert all(sw & 0x6F == 0x27 for sw in cycle.statusword)
+
+
+def test_decode_with_another_mapping_needs_its_eds(session, tmp_path):
+    _, logs, _, _ = session
+    from hil.layout import DRIVE_EDS
+
+    lean = tmp_path / "drive402.eds"
+    lean.write_bytes(DRIVE_EDS.read_bytes().replace(b"DefaultValue=0x60640020", b"DefaultValue=0x60770010"))
+    with pytest.raises(DecodeError, match="0x6064"):
+        list(decode_log(logs[0], encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                        files=node_files(eds_dir=tmp_path)))
+    with pytest.raises(DecodeError, match="NodeID"):
+        node_files(dcf=[lean])
+
+
+def test_qomni_decode_writes_a_run_directory(session, tmp_path):
+    from ident.datasheet import DataSheet
+    from ident.identify import load_run
+    from qomni.cli import app
+
+    _, logs, reference, _ = session
+    sheet = DataSheet.load()
+    drive = replace(sheet.drive, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                    rated_torque=2.0)
+    meta = {"format": "qomni-run/1", "vehicle": sheet.name, "status": "complete",
+            "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
+                          "nominal": asdict(sheet.nominal)},
+            "segments": [{"name": "steer_left", "k": 1, "t_start": 0.0, "t_end": 20 * T_S},
+                         {"name": "straight", "k": 2, "t_start": 20 * T_S, "t_end": 39 * T_S}]}
+    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out),
+                                      "--metadata", str(tmp_path / "metadata.json")])
+    assert result.exit_code == 0, result.output
+    signals, loaded_sheet, loaded_meta = load_run(out)
+    assert signals.steps() == ["steer_left", "straight"] and len(signals) == 39   # t = 0 is in no segment
+    np.testing.assert_allclose(signals.motor_position[0], reference[1][0].motor_position, atol=1e-12)
+    assert loaded_meta["decoded"]["cycles"] == N_CYCLES and loaded_sheet.drive.cycle_time == T_S
+    again = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out)])
+    assert again.exit_code == 2 and "exists" in again.output
+    bad = CliRunner().invoke(app, ["decode", str(tmp_path / "missing.blf"), "--out", str(tmp_path / "x")])
+    assert bad.exit_code == 2 and "does not exist" in " ".join(bad.output.split())
+    assert not (tmp_path / "x").exists()
+
+
+def test_replay_of_the_master_frames_reproduces_the_run(session):
+    """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
+    from qomni.hil_commands import _sent_by_master
+
+    _, logs, _, original = session
+    spec = f"virtual:hil-replay-{uuid.uuid4().hex[:8]}"
+    plant = FakePlant()
+    with VehicleServer(plant, spec) as server:
+        bus = can.Bus(interface="virtual", channel=spec.split(":")[1])
+        try:
+            sent = replay(logs[1], bus, realtime=False, only=_sent_by_master)
+        finally:
+            bus.shutdown()
+        end = time.monotonic() + 5
+        while server.cycles < N_CYCLES and time.monotonic() < end:
+            time.sleep(0.01)
+    assert sent > N_CYCLES * 5
+    assert server.cycles == N_CYCLES
+    np.testing.assert_array_equal(plant.theta, original.theta)
