@@ -178,5 +178,79 @@ class PlantVehicle:
         self.slave.close()
 
 
+def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, steps: tuple[str, ...] | None = None,
+                             run_dir: str | os.PathLike | None = None) -> dict[str, dict[str, float]]:
+    """Closed-loop co-simulation: the campaign controller (:class:`ident.controller.StepController`,
+    segments of :class:`ident.campaign.Campaign`: alignments, rests, the four identification steps and
+    the lane change) drives the plant FMU through :class:`PlantVehicle`.
+
+    Args:
+        path: the plant ``.fmu``; sheet: the data sheet the controller uses (nominal parameters);
+        settings: :class:`ident.campaign.CampaignSettings` (default ``quick()``);
+        steps: names of the segments to run (default all); alignment and rest segments always run;
+        run_dir: where :class:`ident.campaign.Campaign` may create its directory (nothing is recorded;
+            default a temporary directory).
+    Returns:
+        {segment name (``steer_left``, ..., ``lane_change``): tracking errors}: ``alpha_rms``, ``alpha_max``
+        (rad, steering angles against the reference; mode 2 with alpha_v: alpha = f_ICR(alpha_v_ref)),
+        and for chassis steps ``chassis_rms``, ``chassis_max`` (m or rad: x_ch for straight and lane
+        change, as the integral of the plant's x_ch_dot; gamma_ch for rotation), ``cycles`` and
+        ``mode_fraction`` (share of the cycles in which the plant's engaged mode k was the step's mode).
+    """
+    from ident import kinematics
+    from ident.campaign import Campaign, CampaignSettings
+
+    settings = settings or CampaignSettings.quick()
+    tmp = None
+    if run_dir is None:
+        tmp = tempfile.mkdtemp(prefix="qomni_closed_loop_")
+        run_dir = tmp
+    try:
+        campaign = Campaign(sheet, Path(run_dir) / "campaign", settings)
+        vehicle = PlantVehicle(path, sheet.drive.cycle_time)
+        ts = sheet.drive.cycle_time
+        results: dict[str, dict[str, float]] = {}
+        measurement = vehicle.exchange(np.zeros(4))
+        for seg, ctrl in zip(campaign.segments, campaign.controllers):
+            if steps is not None and seg.name not in steps and seg.name not in ("align", "rest"):
+                continue
+            n = int(np.floor(seg.duration / ts + 1e-9)) + 1
+            t = np.arange(n) * ts
+            ref = seg.evaluate(t)
+            if "alpha_v" in ref:
+                alpha_ref = kinematics.f_icr(ref["alpha_v"][0], sheet.geometry)
+            elif "alpha_l" in ref:
+                alpha_ref = np.stack([ref["alpha_l"][0], ref["alpha_r"][0]], axis=1)
+            else:
+                alpha_ref = np.tile(vehicle.last["alpha"] if vehicle.last else np.zeros(2), (n, 1))
+            chassis_name = {"straight": "x_ch", "lane_change": "x_ch", "rotation": "gamma_ch"}.get(seg.name)
+            alpha, chassis, k = np.zeros((n, 2)), np.zeros(n), np.zeros(n, dtype=int)
+            s, start_gamma = 0.0, None
+            for j in range(n):
+                u = ctrl.command(j * ts, measurement)
+                measurement = vehicle.exchange(u)
+                out = vehicle.last
+                alpha[j], k[j] = out["alpha"], out["k"]
+                if start_gamma is None:
+                    start_gamma = out["pose"][2]
+                chassis[j] = out["pose"][2] - start_gamma if chassis_name == "gamma_ch" else s
+                s += out["velocity"][0] * ts
+            if seg.name in ("align", "rest"):
+                continue
+            e_alpha = alpha - alpha_ref
+            r = {"alpha_rms": float(np.sqrt(np.mean(e_alpha**2))), "alpha_max": float(np.max(np.abs(e_alpha))),
+                 "cycles": n, "mode_fraction": float(np.mean(k == seg.mode))}
+            if chassis_name:
+                e = chassis - ref[chassis_name][0]
+                r.update(chassis_rms=float(np.sqrt(np.mean(e**2))), chassis_max=float(np.max(np.abs(e))))
+            results[seg.name] = r
+        vehicle.stop()
+        vehicle.close()
+        return results
+    finally:
+        if tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
 __all__ = ["MOTOR_TORQUE", "MOTOR_POSITION", "MOTOR_VELOCITY", "POSE", "VELOCITY", "ALPHA", "ALPHA_DOT",
-           "REAL_OUTPUTS", "FmuSlave", "PlantVehicle"]
+           "REAL_OUTPUTS", "FmuSlave", "PlantVehicle", "run_campaign_closed_loop"]
