@@ -31,10 +31,12 @@ from ident.identify import correlation_lag, load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import LIBRARY, Hypothesis
+from .hypotheses import LIBRARY, Hypothesis, generic
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
+#: Held-out shrinkage a channel's black-box extension must reach for "unexplained structure remains".
+GENERIC_SHRINK = 0.2
 VERDICT_NONE = "no significant unmodelled effect"
 VERDICT_UNEXPLAINED = "unexplained structure remains"
 
@@ -78,7 +80,7 @@ class Diagnosis:
     candidates: list[fitting.Candidate]
     accepted: list[fitting.Candidate]
     verdict: str
-    structured: list[str]
+    structured: list[str]   # channels where a black-box extension removes held-out residual
     simulation: dict
     holdout: str
     model_source: str
@@ -107,8 +109,9 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = bool(h.physical(theta))
-        significant = cand.p_value < fitting.ALPHA and physical and \
-            cand.evaluation.shrink_affected >= fitting.MIN_SHRINK and cand.evaluation.shrink_affected_ci[0] > 0
+        significant = cand.p_value < fitting.ALPHA_MORE and physical and \
+            cand.evaluation.shrink_affected >= fitting.MIN_SHRINK_MORE and \
+            cand.evaluation.shrink_affected_ci[0] > 0
         if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
             sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
                                     cand.p_value, cand.evaluation, fitting.collinearity(fp, h, cand.fit.nonlinear),
@@ -125,7 +128,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     Args:
         model: identified parameters (``identification.json`` of this or another run).
         data_dir: run directory with the data.
-        holdout_dir: a second run used only for held-out evaluation; default: alternate 2 s windows
+        holdout_dir: a second run used only for held-out evaluation; default: alternate 1 s windows
             of ``data_dir`` are held out.
         simulate: also compare forward simulations (a few seconds of CPU).
     Raises:
@@ -143,7 +146,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     base = fitting.solve(fp, model, None, None, lag, cache)
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache)
                               for h in LIBRARY) if c is not None]
-    candidates.sort(key=lambda c: c.evaluation.removed, reverse=True)
+    candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
     first = next((c for c in candidates if c.significant), None)
     if first is not None:
@@ -162,18 +165,25 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                              joint_fit.n_params))
     where = where_.breakdown(chans, lag)
     structured = where_.structured(where)
+    unexplained = []
+    if not accepted:
+        for ch in chans:
+            cand = fitting.fit_hypothesis(fp, hp, model, generic(ch.name), base, lag, sheet, cache)
+            if cand is not None and cand.significant and cand.evaluation.shrink_affected >= GENERIC_SHRINK:
+                unexplained.append(cand)
     if accepted:
         verdict = "unmodelled effect: " + ", ".join(c.hypothesis.label for c in accepted)
-    elif structured:
-        verdict = VERDICT_UNEXPLAINED
+    elif unexplained:
+        verdict = VERDICT_UNEXPLAINED + " in " + ", ".join(c.hypothesis.variant for c in unexplained)
     else:
         verdict = VERDICT_NONE
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
     simulation = _simulation(hp, model, base, final, cache) if simulate else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
-    return Diagnosis(where, candidates, accepted, verdict, structured, simulation,
-                     "second run" if hold is not None else "alternate 2 s windows of the data",
+    return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
+                     simulation,
+                     "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, chans, (fp, hp), base, final)
 
 

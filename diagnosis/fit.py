@@ -31,14 +31,16 @@ from .channels import ChannelData
 from .hypotheses import Hypothesis, Magnitude
 
 #: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
-WINDOW = 2.0
-#: Significance level of the F test.
+WINDOW = 1.0
+#: Significance level of the F test (first effect; further effects in forward selection: ALPHA_MORE).
 ALPHA = 1e-3
+ALPHA_MORE = 1e-6
 #: Smallest held-out shrinkage in the affected channel that counts as removing residual.
 MIN_SHRINK = 0.10
+MIN_SHRINK_MORE = 0.20
 #: Prior on the base parameters: σ = max(PRIOR_STD_FACTOR·σ_model, PRIOR_REL·|p|).
 PRIOR_STD_FACTOR = 3.0
-PRIOR_REL = 0.01
+PRIOR_REL = 0.002
 #: Effect columns explained to more than this R² by the base columns are not separable from them.
 COLLINEAR_R2 = 0.98
 BOOTSTRAP = 400
@@ -232,7 +234,16 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         per_window[ch.name] = (wins, before, after)
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
-    affected = max(out, key=lambda c: c.rms_before**2 - c.rms_after**2)
+    gain = {}
+    for i, ch in enumerate(problem.channels):
+        rows = problem.holdout_rows[i]
+        if rows.any():
+            gain[ch.name] = problem.weights[i] ** 2 * rows.sum()
+    # The affected channel: of the channels holding at least a tenth of the removed (weighted) residual,
+    # the one where the effect removes the largest fraction.
+    removed = {c.name: gain[c.name] * (c.rms_before**2 - c.rms_after**2) for c in out}
+    top = max(removed.values())
+    affected = max((c for c in out if removed[c.name] >= 0.1 * top), key=lambda c: c.shrink)
     wins, before, after = per_window[affected.name]
     ids = np.unique(wins)
     sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])

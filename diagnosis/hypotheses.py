@@ -238,13 +238,14 @@ def _delay_columns(ch: ChannelData, cycles):
 
 
 def _delay_magnitude(theta, cov, cycles, sheet):
-    ts = sheet.drive.cycle_time
-    return Magnitude(cycles * ts, (max(cycles - 1, 0) * ts, (cycles + 1) * ts), "s",
-                     "delay commanded → applied torque (grid ±1 cycle)")
+    # u(t) − u(t − T) ≈ T·u̇: gain·T is the delay to first order, whatever grid point fits best.
+    T = cycles * sheet.drive.cycle_time
+    g, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+    return Magnitude(g * T, _ci(g, s, T), "s", "delay commanded → applied torque")
 
 
 ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), _delay_columns, DELAY_STEPS,
-                            magnitude=_delay_magnitude, physical=lambda t: 0.5 < t[0] < 1.5,
+                            magnitude=_delay_magnitude, physical=lambda t: 0.3 < t[0] < 1.5,
                             nonlinear_unit="cycles")
 
 
@@ -395,4 +396,30 @@ LIBRARY: tuple[Hypothesis, ...] = (
 )
 """Every hypothesis the diagnosis tests."""
 
-__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "GRAVITY"]
+
+
+# --- generic structure (not a named effect) -----------------------------------------------------------
+def generic(channel: str) -> Hypothesis:
+    """A black-box extension of one channel — residual on its own velocity, acceleration, friction sign,
+    input delayed by 10 and 30 ms, and (kinematic) the steering excursion and drive torque — used to
+    tell "unexplained structure remains" from noise when no named hypothesis is significant."""
+
+    def columns(ch: ChannelData, _):
+        if ch.name != channel:
+            return None
+        v, acc = ch.velocity, ch.acceleration
+        if ch.kind == "torque":
+            y = ch.y
+            lagged = [np.concatenate([np.repeat(y[:1], n), y[:-n]]) - y for n in (5, 15)]
+            return np.column_stack([v, acc, np.tanh(v / EPS_SIGN), v * np.abs(v), *lagged])
+        u = ch.rows(ch.context.st.motor_torque[:, ch.index])
+        alpha = ch.rows(ch.context.st.q[:, 3 + SIDE_INDEX[ch.index]])
+        return np.column_stack([alpha - alpha[0], u, np.tanh(u / BACKLASH_TORQUE_SCALE), v])
+
+    names = (("c_alpha", "c_u", "c_sign_u", "c_v") if "/kinematic_" in channel
+             else ("c_v", "c_a", "c_sign", "c_v2", "c_u5", "c_u15"))
+    return Hypothesis("unexplained", channel, names, columns, magnitude=lambda theta, cov, nl, sheet: Magnitude(
+                          float(np.linalg.norm(theta)), (0.0, 0.0), "-", "black-box coefficients"))
+
+
+__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "GRAVITY", "generic"]
