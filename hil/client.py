@@ -16,6 +16,10 @@ Start-up (:meth:`VehicleClient.connect`), CiA 301 §7.2.8 / CiA 402 §6:
 Cycle (:meth:`VehicleClient.exchange`): the RPDOs (controlword 0x000F, target torque per mille), then
 SYNC, then wait for every synchronous TPDO of this SYNC. Everything the master sends and receives can
 be recorded to a BLF file.
+
+Supervision while operational: a boot-up message of a node (it lost power or was reset) makes the next
+:meth:`VehicleClient.exchange` raise :class:`CommunicationError` at once; every EMCY (CiA 301 §7.2.7) is
+kept in :attr:`VehicleClient.emcy` and the recent ones are named in the error of a missed cycle.
 """
 from __future__ import annotations
 
@@ -158,6 +162,8 @@ class VehicleClient:
         self._expected = 0
         self._booted = False
         self._unwrap: tuple[np.ndarray, np.ndarray] | None = None
+        self.emcy: list[tuple[int, int, int, float]] = []      # (node id, error code, register, time)
+        self._rebooted: list[int] = []
 
     @classmethod
     def from_drive(cls, drive, bus: str | can.BusABC = "virtual", **kwargs) -> "VehicleClient":
@@ -248,6 +254,10 @@ class VehicleClient:
         """
         if not self._operational:
             raise CommunicationError("not connected: call connect() first")
+        if self._rebooted:
+            raise CommunicationError(
+                f"node(s) {sorted(set(self._rebooted))} sent a boot-up message while operational (power "
+                f"loss or reset): their configuration is gone{self._recent_emcy()}")
         tau = np.asarray(motor_torque, dtype=float)
         if tau.shape != (4,):
             raise ValueError(f"motor_torque must have shape (4,), got {tau.shape}")
@@ -268,7 +278,7 @@ class VehicleClient:
             missing = sorted(set(self._tpdo_plan) - set(self._rx))
             raise CommunicationError(
                 f"cycle {self.cycle - 1}: no TPDO with COB-ID {', '.join(f'0x{c:03X}' for c in missing)} "
-                f"within {self.timeout} s after SYNC")
+                f"within {self.timeout} s after SYNC{self._recent_emcy()}")
         return self._decode(t)
 
     def enable(self) -> None:
@@ -431,9 +441,35 @@ class VehicleClient:
                         f"synchronous TPDO (transmission type 1)")
         self._expected = len(self._tpdo_plan)
 
+    def _recent_emcy(self, seconds: float = 2.0) -> str:
+        now = time.time()
+        recent = [(n, c) for n, c, _, t in self.emcy[-12:] if c and now - t < seconds]
+        return "; EMCY " + ", ".join(f"node {n}: 0x{c:04X}" for n, c in recent) if recent else ""
+
+    def _watch_nodes(self) -> None:
+        """Boot-up and EMCY supervision (module docstring)."""
+        def on_state(node_id):
+            def callback(state):
+                if state == 0 and self._operational:
+                    self._rebooted.append(node_id)
+            return callback
+
+        def on_emcy(node_id):
+            def callback(error):
+                self.emcy.append((node_id, error.code, error.register, time.time()))
+                if error.code:
+                    logger.warning("EMCY from node %d: 0x%04X (%s)", node_id, error.code, error.get_desc())
+            return callback
+
+        for node in self.drives + self.encoders:
+            node.nmt.add_heartbeat_callback(on_state(node.id))
+            node.emcy.add_callback(on_emcy(node.id))
+
     def _start(self) -> None:
         for cob_id in self._tpdo_plan:
             self._network.subscribe(cob_id, self._on_tpdo)
+        self._watch_nodes()
+        self._rebooted = []
         for node in self.drives + self.encoders:
             node.nmt.send_command(0x01)                  # NMT start
         self.cycle = 0

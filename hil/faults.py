@@ -7,6 +7,7 @@ emulator's side of the bus as a python-can :class:`can.BusABC` wrapper around th
     seed = 1                       # random generator of loss and jitter
 
     [frame_loss]                   # Gilbert-Elliott: independent losses plus bursts
+    start = 1.0                    # s of emulated time from which frames get lost (default 0)
     rate = 0.001                   # probability that a frame is lost (either direction)
     burst_rate = 0.0002            # probability per frame that a burst starts
     burst_length = 5               # frames lost in a row once a burst started
@@ -60,9 +61,11 @@ class FaultPlanError(ValueError):
 @dataclass(frozen=True)
 class FrameLoss:
     """Frame loss (Gilbert-Elliott): independent ``rate``, bursts of ``burst_length`` frames starting with
-    probability ``burst_rate`` per frame; applies to frames in both directions."""
+    probability ``burst_rate`` per frame; applies to frames in both directions from emulated time
+    ``start`` [s] on."""
 
     rate: float = 0.0
+    start: float = 0.0
     burst_rate: float = 0.0
     burst_length: int = 0
 
@@ -131,7 +134,8 @@ class FaultPlan:
         seed = data.get("seed", 0)
         if not isinstance(seed, int) or isinstance(seed, bool):
             raise FaultPlanError(f"{source}: seed must be an integer, got {seed!r}")
-        loss = _table(data, "frame_loss", source, {"rate": float, "burst_rate": float, "burst_length": int})
+        loss = _table(data, "frame_loss", source, {"rate": float, "burst_rate": float, "burst_length": int,
+                                                   "start": float})
         lat = _table(data, "latency", source, {"mean": float, "jitter": float})
         for key in ("rate", "burst_rate"):
             if not 0.0 <= loss.get(key, 0.0) <= 1.0:
@@ -234,6 +238,8 @@ class FaultInjector:
     # ------------------------------------------------------------ frames
     def _lost(self) -> bool:
         loss = self.plan.frame_loss
+        if not (loss.rate or loss.burst_rate) or (loss.start and self.clock() < loss.start):
+            return False
         if self._burst_left > 0:
             self._burst_left -= 1
             return True

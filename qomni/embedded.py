@@ -28,7 +28,7 @@ LOCKSTEP_SYNC_TIMEOUT = 1.0
 @contextlib.contextmanager
 def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: bool = False,
                      gui: bool = False, record: str | Path | None = None,
-                     effects: EffectSet | None = None) -> Iterator[VehicleClient]:
+                     effects: EffectSet | None = None, faults=None) -> Iterator[VehicleClient]:
     """Start the emulated vehicle on a private virtual bus and yield a connected client.
 
     Args:
@@ -36,12 +36,13 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
         seed: the emulator's noise seed.
         lifted: chassis jacked up, wheels free (single-axis identification).
         gui: show PyBullet's GUI.
-        record: BLF file for every frame on the bus.
+        record: log file(s) for every frame on the bus (``.blf``, ``.log`` candump; hil.recorder).
         effects: unmodelled effects on the ideal vehicle (``None``: the prototype as described).
+        faults: a :class:`hil.faults.FaultPlan` injected on the emulator's side of the bus.
     """
     bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
     emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui, effects=effects)
-    server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT)
+    server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT, faults=faults)
     try:
         server.start()
         with VehicleClient.from_drive(description.drive, bus, record=record) as client:
