@@ -49,14 +49,12 @@ def _description(vehicle: Optional[Path]):
 
 
 def _vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, lifted: bool,
-                  gui: bool, record: Path, faults=None):
+                  gui: bool, record: Path):
     """Context manager yielding a connected client: embedded emulator or the vehicle on ``bus``."""
-    record = [record, record.with_suffix(".log")]         # BLF and candump -L
     if bus is None:
         from qomni.embedded import embedded_vehicle
 
-        return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
-                                faults=faults)
+        return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record)
     from hil.client import VehicleClient
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
@@ -87,21 +85,11 @@ def campaign(
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
              "emulator; with --bus the vehicle must be lifted, so run 'qomni single-axis' instead)."),
     gui: bool = typer.Option(False, help="Show the PyBullet GUI (needs a display)."),
-    faults: Optional[Path] = typer.Option(
-        None, help="Fault plan (TOML, hil/faults.py) injected into the embedded emulator during the "
-                   "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
-                   "--faults'."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = _datasheet(vehicle, datasheet)
-    if faults is not None and bus is not None:
-        _fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
-              "serving the vehicle on --bus")
-    from qomni.hil_commands import _load_or_fail
-
-    fault_plan = _load_or_fail(faults, "faults")
     if (out / "signals.csv").exists():
         _fail(f"{out} already holds a campaign; choose a new --out")
     out.mkdir(parents=True, exist_ok=True)
@@ -117,8 +105,7 @@ def campaign(
     except ValueError as exc:
         _fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
-        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG,
-                           faults=fault_plan) as link:
+        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG) as link:
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         _fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
@@ -276,16 +263,19 @@ def export_fmu(
     source: Path = typer.Argument(..., help="Run directory or identification.json."),
     out: Path = typer.Option(..., "--out", help="FMU file to write (NAME.fmu)."),
     fmi: int = typer.Option(2, "--fmi", help="FMI version: 2 or 3."),
-    kind: str = typer.Option("feedforward", help="Model: 'feedforward' (law (21)); the plant FMU is "
-                                                 "not available yet."),
+    kind: str = typer.Option("feedforward", help="Model: 'feedforward' (law (21): motor torques from the "
+                                                 "desired motion) or 'plant' (the vehicle: motor torques in, "
+                                                 "pose, steering, encoders and mode k out)."),
     vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
-    from fmu.export import FmuExportError, export_feedforward_fmu
+    from fmu.export import FmuExportError, export_feedforward_fmu, export_plant_fmu
     from ident.identify import datasheet_from_metadata, load_identification
 
-    if kind != "feedforward":
-        _fail(f"--kind {kind!r} is not available yet; only 'feedforward' can be exported")
+    exporters = {"feedforward": (export_feedforward_fmu, "feed-forward law (21)"),
+                 "plant": (export_plant_fmu, "plant, reduced dynamics (19)/(20) per motion mode")}
+    if kind not in exporters:
+        _fail(f"--kind must be 'plant' or 'feedforward', got {kind!r}")
     if fmi not in (2, 3):
         _fail(f"--fmi must be 2 or 3, got {fmi}")
     run_dir = source if source.is_dir() else source.parent
@@ -298,10 +288,10 @@ def export_fmu(
         sheet = _guarded(lambda: datasheet_from_metadata(json.loads(meta.read_text()), str(meta)))
     result = _guarded(lambda: load_identification(source))
     try:
-        path = export_feedforward_fmu(result, sheet, out, fmi_version=fmi)
+        path = exporters[kind][0](result, sheet, out, fmi_version=fmi)
     except (FmuExportError, ValueError) as exc:
         _fail(str(exc))
-    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, feed-forward law (21))")
+    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {exporters[kind][1]})")
 
 
 @app.command()
