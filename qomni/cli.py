@@ -49,12 +49,14 @@ def _description(vehicle: Optional[Path]):
 
 
 def _vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, lifted: bool,
-                  gui: bool, record: Path):
+                  gui: bool, record: Path, faults=None):
     """Context manager yielding a connected client: embedded emulator or the vehicle on ``bus``."""
+    record = [record, record.with_suffix(".log")]         # BLF and candump -L
     if bus is None:
         from qomni.embedded import embedded_vehicle
 
-        return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record)
+        return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
+                                faults=faults)
     from hil.client import VehicleClient
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
@@ -85,11 +87,21 @@ def campaign(
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
              "emulator; with --bus the vehicle must be lifted, so run 'qomni single-axis' instead)."),
     gui: bool = typer.Option(False, help="Show the PyBullet GUI (needs a display)."),
+    faults: Optional[Path] = typer.Option(
+        None, help="Fault plan (TOML, hil/faults.py) injected into the embedded emulator during the "
+                   "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
+                   "--faults'."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = _datasheet(vehicle, datasheet)
+    if faults is not None and bus is not None:
+        _fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
+              "serving the vehicle on --bus")
+    from qomni.hil_commands import _load_or_fail
+
+    fault_plan = _load_or_fail(faults, "faults")
     if (out / "signals.csv").exists():
         _fail(f"{out} already holds a campaign; choose a new --out")
     out.mkdir(parents=True, exist_ok=True)
@@ -105,7 +117,8 @@ def campaign(
     except ValueError as exc:
         _fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
-        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG) as link:
+        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG,
+                           faults=fault_plan) as link:
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         _fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
