@@ -250,10 +250,10 @@ def breakaway(emu, direction, rate, seconds, moving) -> float:
     raise AssertionError("never broke away")
 
 
-@pytest.mark.parametrize("ratio", [1.0, 2.0])
-def test_stribeck_wheel_breakaway_is_ratio_times_coulomb(ratio):
+@pytest.mark.parametrize("ratio, joints", [(1.0, "wheels"), (2.0, "wheels"), (2.0, "both")])
+def test_stribeck_wheel_breakaway_is_ratio_times_coulomb(ratio, joints):
     """Lifted wheel under a slow torque ramp: it breaks away at i_G·M = ratio·d_cw."""
-    effects = {"stribeck": {"joints": "wheels", "breakaway_ratio": ratio, "stribeck_velocity": 0.05}}
+    effects = {"stribeck": {"joints": joints, "breakaway_ratio": ratio, "stribeck_velocity": 0.05}}
     with emulator(effects, lifted=True, seed=1) as emu:
         m = breakaway(emu, [1, 0, 0, 0], 12.0 / DR.i_G, 1.0, lambda s: abs(s.beta_dot[0]) > 0.02)
     assert DR.i_G * m == pytest.approx(ratio * T.d_cw, rel=0.08)

@@ -14,16 +14,17 @@ class Stribeck(Effect):
     name = "stribeck"
     summary = "low-speed friction peak (breakaway above Coulomb) in the wheel or steering joints"
     params = {
-        "joints": Param("-", kind="choice", choices=("wheels", "steering"),
-                        doc="the wheel joints (wheel side of the gear) or the steering joints"),
+        "joints": Param("-", kind="choice", choices=("wheels", "steering", "both"),
+                        doc="the wheel joints (wheel side of the gear), the steering joints, or both"),
         "breakaway_ratio": Param("-", 1.0, 5.0, doc="static / Coulomb friction"),
         "stribeck_velocity": Param("rad/s", 1e-3, 1.0, doc="joint speed at which the peak decays"),
     }
 
     def attach(self, plant: Plant) -> None:
         plant.dynamic_friction()
-        wheels = self.values["joints"] == "wheels"
-        self._joints = plant.wheel if wheels else plant.steer
+        which = self.values["joints"]
+        self._joints = ((plant.steer if which != "wheels" else [])
+                        + (plant.wheel if which != "steering" else []))
         self._slots = np.array([plant.coulomb_joints.index(j) for j in self._joints])
         self._peak = plant.coulomb_base[self._slots] * (self.values["breakaway_ratio"] - 1)
 
