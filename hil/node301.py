@@ -564,9 +564,12 @@ class Node301(canopen.LocalNode):
                     self._sync_lost = True
                     self._communication_lost(EMCY_COMMUNICATION)
                     tripped = True
+            # The RPDO deadline never trips before the node's SYNC-loss time: a lock-step host sets a
+            # long sync_timeout because a loaded machine may pause its master, which is no bus fault.
+            floor = self.sync_timeout or 0.0
             for pdo in self._rpdos.values():
                 if pdo.event_timer_ms and pdo.last_rx is not None and \
-                        now - pdo.last_rx > pdo.event_timer_ms * 1e-3:
+                        now - pdo.last_rx > max(pdo.event_timer_ms * 1e-3, floor):
                     pdo.last_rx = None
                     self._rpdo_lost = True
                     self._communication_lost(EMCY_RPDO_TIMEOUT)
