@@ -34,7 +34,7 @@ from .hypotheses import Hypothesis, Magnitude
 WINDOW = 1.0
 #: Significance level of the F test (first effect; further effects in forward selection: ALPHA_MORE).
 ALPHA = 1e-3
-ALPHA_MORE = 1e-6
+ALPHA_MORE = 1e-8
 #: Smallest held-out shrinkage in the affected channel that counts as removing residual.
 MIN_SHRINK = 0.10
 MIN_SHRINK_MORE = 0.20

@@ -48,14 +48,27 @@ def _description(vehicle: Optional[Path]):
         _fail(str(exc))
 
 
+def _effects(path: Optional[Path]):
+    """The effects file's EffectSet, or None (the prototype as described)."""
+    if path is None:
+        return None
+    from emulator.effects import EffectSet, EffectsError
+
+    try:
+        return EffectSet.load(path)
+    except (EffectsError, FileNotFoundError) as exc:
+        _fail(str(exc))
+
+
 def _vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, lifted: bool,
-                  gui: bool, record: Path, faults=None):
+                  gui: bool, record: Path, effects=None, faults=None):
     """Context manager yielding a connected client: embedded emulator or the vehicle on ``bus``."""
     record = [record, record.with_suffix(".log")]         # BLF and candump -L
     if bus is None:
         from qomni.embedded import embedded_vehicle
 
         return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
+                                effects=effects,
                                 faults=faults)
     from hil.client import VehicleClient
 
@@ -91,6 +104,9 @@ def campaign(
         None, help="Fault plan (TOML, hil/faults.py) injected into the embedded emulator during the "
                    "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
                    "--faults'."),
+    effects: Optional[Path] = typer.Option(
+        None, help="Effects file (TOML, docs/effects.md) for the embedded emulator: the ideal vehicle "
+                   "plus the effects it lists. Default: the prototype as described."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from ident.campaign import Campaign, CampaignAborted, CampaignSettings
@@ -108,8 +124,11 @@ def campaign(
     started = time.perf_counter()
     if single_axis is None:
         single_axis = bus is None
+    if effects is not None and bus is not None:
+        _fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
+    effect_set = _effects(effects)
     if single_axis:
-        _single_axis(out, bus, vehicle, sheet, seed, gui)
+        _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
@@ -117,7 +136,7 @@ def campaign(
     except ValueError as exc:
         _fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
-        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG,
+        with _vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG, effect_set,
                            faults=fault_plan) as link:
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
@@ -132,7 +151,7 @@ def campaign(
     console.print(f"total wall time {time.perf_counter() - started:.1f} s")
 
 
-def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool) -> None:
+def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=None) -> None:
     from ident.campaign import CampaignAborted
     from ident.single_axis import (SINGLE_AXIS_DIR, identify_single_axis, plan_single_axis,
                                    run_single_axis)
@@ -141,7 +160,7 @@ def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool) -> None:
     trajectories = plan_single_axis()
     try:
         with _vehicle_link(bus, vehicle, sheet, seed, True, gui,
-                           out / SINGLE_AXIS_DIR / BUS_LOG) as link:
+                           out / SINGLE_AXIS_DIR / BUS_LOG, effects) as link:
             _run_with_progress("single axis",
                                lambda cb: run_single_axis(link, sheet, out, trajectories, on_progress=cb))
     except CampaignAborted as exc:
@@ -305,6 +324,36 @@ def export_fmu(
     except (FmuExportError, ValueError) as exc:
         _fail(str(exc))
     console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {exporters[kind][1]})")
+
+
+@app.command()
+def diagnose(
+    model: Path = typer.Option(..., "--model", help="identification.json (or its run directory)."),
+    data: Path = typer.Option(..., "--data", help="Run directory whose data are diagnosed."),
+    holdout: Optional[Path] = typer.Option(None, "--holdout", help="Second run used only as held-out "
+                                           "data (default: alternate 1 s windows of --data)."),
+    out: Path = typer.Option(..., "--out", help="Directory for gap.json and report.html."),
+    simulate: bool = typer.Option(True, help="Also compare 1 s forward simulations."),
+):
+    """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
+    how far the held-out residual shrinks once it is added (gap.json, report.html)."""
+    from diagnosis.diagnose import diagnose_paths
+    from diagnosis.report import write_report
+
+    d = _guarded(lambda: diagnose_paths(model, data, holdout, simulate=simulate))
+    table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
+    for col in ("#", "Effect", "Magnitude", "95 % CI", "p", "Held-out shrink", "Channel", "Significant"):
+        table.add_column(col, justify="left" if col in ("Effect", "Channel") else "right")
+    for i, c in enumerate(d.candidates[:8]):
+        m = c.magnitude
+        table.add_row(str(i + 1), c.hypothesis.label, f"{m.value:.4g} {m.unit}",
+                      f"[{m.ci[0]:.3g}, {m.ci[1]:.3g}]", f"{c.p_value:.1e}",
+                      f"{100 * c.evaluation.shrink_affected:.1f} %", c.evaluation.affected,
+                      "yes" if c.significant else "no")
+    console.print(table)
+    console.print(f"[bold]verdict:[/] {d.verdict}")
+    json_path, html_path = write_report(d, out)
+    console.print(f"written {json_path} and {html_path}")
 
 
 @app.command()

@@ -22,7 +22,7 @@ _channels = itertools.count()
 #: SYNC-loss supervision of the embedded (lock-step) drives, s. In lock-step the physics does not
 #: advance without SYNC, so the timeout only has to detect a dead master; a shared 2-core machine can
 #: deschedule a Python master for longer than a real drive's 0.1 s.
-LOCKSTEP_SYNC_TIMEOUT = 1.0
+LOCKSTEP_SYNC_TIMEOUT = 5.0
 
 
 @contextlib.contextmanager

@@ -1,5 +1,5 @@
-"""The one rule of architecture: the emulator stands in for the hardware, so ``ident`` and ``fmu`` never
-import ``emulator`` — not directly, and not through anything they import (hil.client included)."""
+"""The one rule of architecture: the emulator stands in for the hardware, so ``ident``, ``fmu`` and the
+gap ``diagnosis`` never import ``emulator`` — not directly, and not through anything they import (hil.client included)."""
 import ast
 import subprocess
 import sys
@@ -10,7 +10,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("package", ["ident", "fmu"])
+@pytest.mark.parametrize("package", ["ident", "fmu", "diagnosis"])
 def test_no_module_mentions_emulator_in_an_import(package):
     offenders = []
     for path in (ROOT / package).rglob("*.py"):
@@ -25,11 +25,11 @@ def test_no_module_mentions_emulator_in_an_import(package):
     assert not offenders
 
 
-def test_importing_every_module_of_ident_and_fmu_loads_no_emulator():
+def test_importing_every_module_of_ident_fmu_and_diagnosis_loads_no_emulator():
     code = """
 import importlib, pkgutil, sys
-import ident, fmu, hil.client, hil.measurement
-for pkg in (ident, fmu):
+import ident, fmu, diagnosis, hil.client, hil.measurement
+for pkg in (ident, fmu, diagnosis):
     for mod in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
         importlib.import_module(mod.name)
 loaded = sorted(m for m in sys.modules if m == "emulator" or m.startswith("emulator.") or m == "pybullet")
