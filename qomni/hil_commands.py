@@ -46,6 +46,8 @@ def emulate(
                                              "cycle (default T_s/2)."),
     sync_timeout: float = typer.Option(0.1, help="s without SYNC after which enabled drives fault (0x6007)."),
     lifted: bool = typer.Option(False, help="Chassis jacked up, wheels free."),
+    stats: Optional[Path] = typer.Option(None, help="Also write the timing statistics as JSON here "
+                                         "(latencies in s)."),
 ):
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
     from emulator.vehicle import Emulator
@@ -84,6 +86,15 @@ def emulate(
         server.stop()
         emulator.close()
     console.print(server.stats.report())
+    if stats is not None:
+        import json
+
+        summary = dict(server.stats.summary(), realtime=realtime, bus=bus)
+        if server.injector is not None:
+            from dataclasses import asdict
+
+            summary["faults"] = asdict(server.injector.counters)
+        stats.write_text(json.dumps(summary, indent=2))
     if server.injector is not None:
         c = server.injector.counters
         console.print(f"faults: frames lost rx {c.lost_rx} / tx {c.lost_tx}, SYNC dropped {c.sync_dropped}, "

@@ -1,0 +1,28 @@
+"""Worst-case bus load of the active PDO mapping (hil.busload)."""
+import pytest
+
+from hil.busload import bus_load, frame_bits
+from hil.decode import node_files
+from hil.layout import DRIVE_EDS
+
+
+def test_frame_bits_worst_case_stuffing():
+    assert [frame_bits(n) for n in (0, 4, 6, 8)] == [55, 95, 115, 135]
+    with pytest.raises(ValueError):
+        frame_bits(9)
+
+
+def test_shipped_mapping_at_1_mbit(tmp_path):
+    load = bus_load(1_000_000, 0.002)
+    # SYNC + 4 RPDO (4 B) + 8 drive TPDO (6 B) + 2 encoder TPDO (4 B) + 6 heartbeats at 1 s
+    assert load.bits_per_cycle == pytest.approx(55 + 4 * 95 + 8 * 115 + 2 * 95 + 6 * 0.002 * 65)
+    assert load.load == pytest.approx(0.773, abs=0.001)
+    lean = tmp_path / "drive402.eds"                       # TPDO2 every 2nd SYNC halves its share
+    lean.write_bytes(DRIVE_EDS.read_bytes().replace(
+        b"[1801sub2]\r\nParameterName=Transmission type\r\nObjectType=0x7\r\nDataType=0x0005\r\nAccessType=rw\r\n"
+        b"DefaultValue=1", b"[1801sub2]\r\nParameterName=Transmission type\r\nObjectType=0x7\r\n"
+        b"DataType=0x0005\r\nAccessType=rw\r\nDefaultValue=2"))
+    assert bus_load(1_000_000, 0.002, node_files(eds_dir=tmp_path)).bits_per_cycle == \
+        pytest.approx(load.bits_per_cycle - 4 * 115 / 2)
+    with pytest.raises(ValueError):
+        bus_load(0, 0.002)
