@@ -11,6 +11,7 @@ only, e.g. ``socketcand:127.0.0.1:29536/can0``.
 """
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 
@@ -96,10 +97,16 @@ def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
     if parsed.bitrate is not None:
         kwargs.setdefault("bitrate", parsed.bitrate)
     if parsed.host is not None:
+        logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_quiet_partial_reads)
         kwargs.setdefault("host", parsed.host)
         kwargs.setdefault("port", parsed.port)
         kwargs.setdefault("tcp_tune", True)
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
+
+
+def _quiet_partial_reads(record: logging.LogRecord) -> bool:
+    """python-can's socketcand client warns on every TCP read that ends mid-frame; that is normal."""
+    return "incomplete message" not in record.getMessage()
 
 
 def _parse_bitrate(text: str, spec: str) -> int:
