@@ -21,7 +21,8 @@ _channels = itertools.count()
 
 #: SYNC-loss supervision of the embedded (lock-step) drives, s. In lock-step the physics does not
 #: advance without SYNC, so the timeout only has to detect a dead master; a shared 2-core machine can
-#: deschedule a Python master for longer than a real drive's 0.1 s.
+#: deschedule a Python master (or the emulator's thread) for longer than a real drive's 0.1 s. The client
+#: waits as long for the TPDOs of a SYNC.
 LOCKSTEP_SYNC_TIMEOUT = 5.0
 
 
@@ -45,7 +46,8 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
     server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT, faults=faults)
     try:
         server.start()
-        with VehicleClient.from_drive(description.drive, bus, record=record) as client:
+        with VehicleClient.from_drive(description.drive, bus, record=record,
+                                      timeout=LOCKSTEP_SYNC_TIMEOUT) as client:
             yield client
     finally:
         server.stop()
