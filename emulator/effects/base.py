@@ -3,8 +3,8 @@
 An effect is physics the paper's model leaves out. It acts on the emulated vehicle only through the hooks
 below, which the :class:`~emulator.vehicle.Emulator` calls in this order:
 
-1. ``configure(plan, description)`` before the URDF is generated: change the rigid bodies (masses, wheel radius, an
-   extra payload link, a separate motor rotor behind a gear);
+1. ``configure(plan, description)`` before the URDF is generated: change the rigid bodies (masses,
+   wheel radius, an extra payload link, a separate motor rotor behind a gear);
 2. ``attach(plant)`` once the body is loaded, before the vehicle settles: gravity, contact parameters,
    constraints, and which joints the effect puts torque on;
 3. every physics step, ``drive_torque(applied)`` maps the torque the drive reports (motor side) to the
