@@ -34,7 +34,7 @@ def session(tmp_path_factory):
     reference = []
     with VehicleServer(plant, spec), VehicleClient(spec, encoder_increments=INCREMENTS,
                                                    steering_sensor_bits=BITS, cycle_time=T_S,
-                                                   record=logs) as client:
+                                                   record=logs, timeout=5.0) as client:
         for k in range(N_CYCLES):
             reference.append((client.exchange(torques(k)), torques(k)))
     return tmp, logs, reference, plant
