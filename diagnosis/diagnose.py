@@ -122,7 +122,8 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
 
 
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
-             *, simulate: bool = True, model_source: str = "") -> Diagnosis:
+             *, reference_dir: str | Path | None = None, simulate: bool = True,
+             model_source: str = "") -> Diagnosis:
     """Diagnose the gap between ``model`` and the run in ``data_dir``.
 
     Args:
@@ -130,6 +131,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         data_dir: run directory with the data.
         holdout_dir: a second run used only for held-out evaluation; default: alternate 1 s windows
             of ``data_dir`` are held out.
+        reference_dir: the run the model was identified on, if it is another run than ``data_dir``:
+            each hypothesis is then tested beyond the level it already has there (e.g. the
+            stick-slip transients of real static friction, which a Stribeck column also fits).
         simulate: also compare forward simulations (a few seconds of CPU).
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
@@ -143,8 +147,15 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         hold = channels(h_signals, h_sheet, model)
     fp, hp = fitting.make_problem(chans, lag, hold)
     cache: dict = {}
+    levels: dict = {}
+    if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
+        r_signals, r_sheet, _ = load_run(reference_dir)
+        ref = channels(r_signals, r_sheet, model)
+        ref_problem, _ = fitting.make_problem(ref, lag, ref)
+        levels = fitting.reference_levels(ref_problem, model, LIBRARY, lag, cache)
     base = fitting.solve(fp, model, None, None, lag, cache)
-    candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache)
+    candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
+                                                     levels.get(h.label))
                               for h in LIBRARY) if c is not None]
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
@@ -211,6 +222,10 @@ def _simulation(problem: fitting.Problem, model: IdentificationResult, base: fit
 
 def diagnose_paths(model_path: str | Path, data_dir: str | Path, holdout_dir: str | Path | None = None,
                    **kwargs) -> Diagnosis:
-    """:func:`diagnose` with the model read from ``identification.json`` (file or run directory)."""
-    return diagnose(load_identification(model_path), data_dir, holdout_dir,
+    """:func:`diagnose` with the model read from ``identification.json`` (file or run directory); the
+    run directory holding it, if it holds a recording, is the reference run."""
+    path = Path(model_path)
+    run = path if path.is_dir() else path.parent
+    reference = run if (run / "signals.csv").exists() else None
+    return diagnose(load_identification(model_path), data_dir, holdout_dir, reference_dir=reference,
                     model_source=str(model_path), **kwargs)

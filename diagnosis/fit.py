@@ -104,6 +104,21 @@ class Fit:
     rss: float                      # weighted, fit rows, including the prior term
     n_eff: float
     n_params: int
+    theta0: np.ndarray | None = None  # the reference run's level of the hypothesis, part of the base
+    shift_hypothesis: Hypothesis | None = None  # a base fit holding a hypothesis at θ₀
+
+
+def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
+    """Φ_e θ₀ of one channel (the reference's level of the hypothesis), or None."""
+    if h is None or theta0 is None:
+        return None
+    key = (h.label, nonlinear, id(ch))
+    cols = cache.get(key) if cache is not None else None
+    if cols is None:
+        cols = h.columns(ch, nonlinear)
+        if cache is not None:
+            cache[key] = cols
+    return None if cols is None else cols @ theta0
 
 
 def _columns(h: Hypothesis | None, ch: ChannelData, nonlinear) -> np.ndarray | None:
@@ -111,11 +126,14 @@ def _columns(h: Hypothesis | None, ch: ChannelData, nonlinear) -> np.ndarray | N
 
 
 def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, nonlinear, lag: int,
-          cache: dict | None = None) -> Fit | None:
+          cache: dict | None = None, theta0: np.ndarray | None = None, free: bool = True) -> Fit | None:
     """Least squares of the stacked weighted rows plus the prior rows. None if the hypothesis has no
-    column anywhere or its columns vanish."""
+    column anywhere or its columns vanish.
+
+    ``theta0``: the hypothesis' level in the reference run, taken as part of the base (θ = θ₀ + δθ);
+    ``free=False`` keeps θ = θ₀ (the base fit such a hypothesis is tested against)."""
     kin = [i for i, c in enumerate(problem.channels) if c.kind == "kinematic"]
-    q = len(h.parameters) if h is not None else 0
+    q = len(h.parameters) if h is not None and free else 0
     n_base = len(P1_NAMES)
     n_cols = n_base + len(kin) + q
     blocks_A, blocks_b = [], []
@@ -140,7 +158,11 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
                 A[:, -q:] = cols[rows]
                 any_effect = any_effect or bool(np.any(cols[rows] != 0))
         blocks_A.append(A * problem.weights[i])
-        blocks_b.append(ch.residual[rows] * problem.weights[i])
+        target = ch.residual[rows]
+        shift = _shift(h, nonlinear, theta0, ch, cache)
+        if shift is not None:
+            target = target - shift[rows]
+        blocks_b.append(target * problem.weights[i])
     if q and not any_effect:
         return None
     prior_std = np.maximum(PRIOR_STD_FACTOR * model.std_vector, PRIOR_REL * np.abs(model.p1))
@@ -160,7 +182,12 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     offsets = {problem.channels[i].name: float(x[n_base + j]) for j, i in enumerate(kin)}
     theta = x[n_cols - q:] if q else np.zeros(0)
     theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
-    return Fit(h, nonlinear, theta, theta_cov, x[:n_base], offsets, rss, n_eff, n_cols)
+    if q and theta0 is not None:
+        theta = theta + theta0
+    if not free:
+        return Fit(None, nonlinear, np.zeros(0), np.zeros((0, 0)), x[:n_base], offsets, rss, n_eff, n_cols,
+                   theta0=theta0, shift_hypothesis=h)
+    return Fit(h, nonlinear, theta, theta_cov, x[:n_base], offsets, rss, n_eff, n_cols, theta0=theta0)
 
 
 def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
@@ -171,6 +198,10 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     r = ch.residual[rows].copy()
     if ch.kind == "torque":
         r -= ch.base[rows] @ fit.delta_p
+    if fit.shift_hypothesis is not None:
+        shift = _shift(fit.shift_hypothesis, fit.nonlinear, fit.theta0, ch, cache)
+        if shift is not None:
+            r -= shift[rows]
     if fit.hypothesis is not None and len(fit.theta):
         key = (fit.hypothesis.label, fit.nonlinear, id(ch))
         cols = cache.get(key) if cache is not None else None
@@ -324,21 +355,34 @@ class Candidate:
 
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
-                   h: Hypothesis, base: Fit, lag: int, sheet, cache: dict) -> Candidate | None:
-    """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows."""
-    best = None
+                   h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,
+                   reference: dict | None = None) -> Candidate | None:
+    """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows.
+
+    ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
+    test is then whether the data need more of it than the reference had (θ ≠ θ₀)."""
+    best, best_base = None, base
     for nonlinear in h.grid:
-        ext = solve(fit_problem, model, h, nonlinear, lag, cache)
-        if ext is not None and (best is None or ext.rss < best.rss):
-            best = ext
+        theta0 = None if reference is None else reference.get(nonlinear)
+        ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
+        if ext is None:
+            continue
+        ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
+                                                      theta0=theta0, free=False)
+        if best is None or ext.rss - ext_base.rss < best.rss - best_base.rss:
+            best, best_base = ext, ext_base
     if best is None:
         return None
+    base = best_base
     p_value = f_test(base, best, extra_dof=0 if h.grid == (None,) else 1)
     evaluation = evaluate(hold_problem, base, best, cache)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = bool(h.physical(best.theta))
     cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical)
+    if best.theta0 is not None and np.any(best.theta0 != 0):
+        cand.notes.append("the model's own run already shows a level "
+                          + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")
     cand.significant = bool(p_value < ALPHA and physical and evaluation.shrink_affected >= MIN_SHRINK
                             and evaluation.shrink_affected_ci[0] > 0)
     if not physical:
@@ -347,3 +391,19 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         cand.notes.append("columns nearly collinear with " + ", ".join(ident_check["correlated_with"])
                           + ": separable only through the base model's uncertainty")
     return cand
+
+
+def reference_levels(problem: Problem, model: IdentificationResult, hypotheses, lag: int,
+                     cache: dict) -> dict[str, dict]:
+    """Every hypothesis' level θ₀ per non-linear value fitted on the model's own run (``problem`` with
+    all rows as fit rows): what the model's source data already hold of each hypothesis — e.g. the
+    stick-slip transients of any real friction that a Stribeck column also fits."""
+    levels = {}
+    for h in hypotheses:
+        per = {}
+        for nonlinear in h.grid:
+            fit = solve(problem, model, h, nonlinear, lag, cache)
+            if fit is not None:
+                per[nonlinear] = fit.theta
+        levels[h.label] = per
+    return levels

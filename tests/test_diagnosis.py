@@ -1,0 +1,96 @@
+"""The gap diagnosis, blind: quick campaigns on emulators with a known effect (none; one; two at once),
+diagnosed against a model identified on the ideal emulator, told nothing about the effects.
+
+The full suite (every effect × 5 seeds × 2 magnitudes) is ``python benchmarks/blind_suite.py``.
+"""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from qomni.blind_suite import Case, run_suite, score, seeded_table
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    work = tmp_path_factory.mktemp("blind")
+    cases = [
+        Case("ideal", {}, [], seed=31),
+        Case("torque", {"torque_constant_error": {"drive": "fl", "factor": 0.88}},
+             ["torque_constant_error"], seed=32),
+        Case("incline+radius", {"incline": seeded_table("incline", 1, 33),
+                                "wheel_radius": {"radius": 0.096}},
+             ["incline", "wheel_radius"], seed=33),
+    ]
+    results = {r.case.name: r for r in run_suite(cases, work, quick=True, workers=2)}
+    return work, results
+
+
+def test_no_case_failed(suite):
+    _, results = suite
+    assert not [r.error for r in results.values() if r.error]
+
+
+def test_ideal_emulator_gives_no_significant_effect(suite):
+    work, results = suite
+    r = results["ideal"]
+    assert r.accepted == []
+    assert r.verdict == "no significant unmodelled effect"
+    gap = json.loads((work / "ideal" / "gap" / "gap.json").read_text())
+    assert gap["verdict"] == "no significant unmodelled effect"
+    assert not any(e["significant"] for e in gap["effects"])
+
+
+def test_single_effect_is_ranked_first_with_its_magnitude(suite):
+    work, results = suite
+    r = results["torque"]
+    assert r.accepted[:1] == ["torque_constant_error"] and r.false_positives == []
+    gap = json.loads((work / "torque" / "gap" / "gap.json").read_text())
+    top = gap["effects"][0]
+    assert top["name"] == "torque_constant_error" and top["variant"] == "drive fl"
+    assert top["significant"]
+    assert top["ci"][0] <= top["magnitude"] <= top["ci"][1]
+    assert top["magnitude"] == pytest.approx(0.88 - 1, abs=0.02)      # factor − 1
+    assert top["holdout_shrink"] >= 0.5
+    for key in ("name", "magnitude", "ci", "significant", "holdout_shrink"):
+        assert all(key in e for e in gap["effects"])
+
+
+def test_two_effects_at_once_are_both_named(suite):
+    work, results = suite
+    r = results["incline+radius"]
+    assert set(r.accepted) == {"incline", "wheel_radius"}
+    gap = json.loads((work / "incline+radius" / "gap" / "gap.json").read_text())
+    radius = next(e for e in gap["accepted"] if e["name"] == "wheel_radius")
+    assert radius["magnitude"] == pytest.approx(0.096, abs=0.001)
+    assert all(e["holdout_shrink"] >= 0.5 for e in gap["accepted"])
+
+
+def test_score_counts_top1_and_false_positives(suite):
+    _, results = suite
+    s = score(list(results.values()))
+    assert s["top1_accuracy"] == 1.0
+    assert s["ideal_false_positives"] == 0
+    assert s["pairs_both_named"] == 1
+
+
+def test_run_directories_hold_no_effect(suite):
+    work, _ = suite
+    for case in ("torque", "incline+radius"):
+        names = {p.name for p in (work / case).rglob("*")}
+        assert not any("effect" in n for n in names)
+        meta = (work / case / "metadata.json").read_text()
+        assert "torque_constant_error" not in meta and "wheel_radius" not in meta and "incline" not in meta
+
+
+def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
+    work, _ = suite
+    out = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model", str(tmp_path / "none"),
+                          "--data", str(work / "ideal"), "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True)
+    assert out.returncode == 2
+    assert "identification.json" in out.stdout + out.stderr
+    assert not (tmp_path / "d").exists()
