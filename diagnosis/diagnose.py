@@ -31,7 +31,7 @@ from ident.identify import correlation_lag, load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import LIBRARY, Hypothesis, generic
+from .hypotheses import GRAVITY, LIBRARY, Hypothesis, generic
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -86,6 +86,8 @@ class Diagnosis:
     model_source: str
     data_source: str
     base_delta_p: dict
+    model: IdentificationResult | None = field(repr=False, default=None)
+    data_metadata: Path | None = field(repr=False, default=None)
     channels: list[ChannelData] = field(repr=False, default_factory=list)
     problems: tuple = field(repr=False, default=())
     base_fit: fitting.Fit | None = field(repr=False, default=None)
@@ -189,32 +191,70 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     else:
         verdict = VERDICT_NONE
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
-    simulation = _simulation(hp, model, base, final, cache) if simulate else {}
+    simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
-                     model_source, str(data_dir), base_delta, chans, (fp, hp), base, final)
+                     model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
+                     chans, (fp, hp), base, final)
 
 
-def _correction(problem: fitting.Problem, i: int, f: fitting.Fit, cache) -> np.ndarray:
+#: Effects the paper's parameters can carry: name → {parameter: (coefficient, scale(p, r))}.
+FOLDABLE = {
+    "payload": {"m_ch": ("delta_m", lambda p, r: 1.0), "C_ch": ("delta_C", lambda p, r: 1.0)},
+    "rolling_resistance": {"d_cw": ("c_rr", lambda p, r: p[6] * GRAVITY * r / 4)},
+}
+
+
+def fold(model: IdentificationResult, final: fitting.Fit, accepted: list, r: float):
+    """The model's p (11,) with the final fit's δp and the foldable accepted effects folded in, and the
+    accepted effects that stay outside the paper's parameters."""
+    p = model.p.copy()
+    p[:10] += final.delta_p
+    rest = []
+    for c in accepted:
+        rule = FOLDABLE.get(c.hypothesis.name)
+        if rule is None:
+            rest.append(c)
+            continue
+        theta = dict(zip(c.hypothesis.parameters, c.fit.theta[-len(c.hypothesis.parameters):]))
+        for name, (coef, scale) in rule.items():
+            p[P1_NAMES.index(name)] += float(theta[coef]) * scale(p, r)
+    return p, rest
+
+
+def _effect_term(problem: fitting.Problem, i: int, effects: list) -> np.ndarray | None:
+    """Σ Φ_e θ_e of the given accepted effects in channel i (all rows), or None."""
     ch = problem.channels[i]
-    rows = np.ones(len(ch.y), dtype=bool)
-    return ch.residual - fitting.predicted_residual(problem, i, f, rows, cache)
+    total = None
+    for c in effects:
+        q = len(c.hypothesis.parameters)
+        cols = c.hypothesis.columns(ch, c.fit.nonlinear)
+        if cols is not None:
+            term = cols @ c.fit.theta[-q:]
+            total = term if total is None else total + term
+    return total
 
 
 def _simulation(problem: fitting.Problem, model: IdentificationResult, base: fitting.Fit,
-                final: fitting.Fit, cache) -> dict:
-    """Forward-simulation error per torque channel, base fit vs. with the accepted effects."""
+                final: fitting.Fit, accepted: list, r: float) -> dict:
+    """Forward-simulation error per torque channel, base fit vs. with the accepted effects. The base
+    parameters of each fit (p + δp) enter the simulated dynamics; the effects' terms are taken from
+    the measured signals (teacher forcing, :mod:`diagnosis.simulate`) unless the paper's parameters can
+    carry them (:data:`FOLDABLE`)."""
     out = {}
     seen = set()
     for i, ch in enumerate(problem.channels):
         if ch.kind != "torque" or ch.name in seen:
             continue
         seen.add(ch.name)
-        before = simulate_channel(ch, model.p, _correction(problem, i, base, cache))
-        after = simulate_channel(ch, model.p, _correction(problem, i, final, cache))
+        p_before = model.p.copy()
+        p_before[:10] += base.delta_p
+        p_after, rest = fold(model, final, accepted, ch.context.sheet.geometry.r)
+        before = simulate_channel(ch, p_before)
+        after = simulate_channel(ch, p_after, _effect_term(problem, i, rest))
         out[ch.name] = {"before": before, "after": after,
                         "shrink": 1 - after["rms"] / before["rms"] if before["rms"] > 0 else 0.0}
     return out

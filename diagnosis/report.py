@@ -15,6 +15,29 @@ from .fit import Candidate, predicted_residual
 
 GAP_JSON = "gap.json"
 REPORT_HTML = "report.html"
+AUGMENTED_JSON = "augmented_identification.json"
+
+
+def augmented_identification(d: Diagnosis) -> dict | None:
+    """The model with the diagnosis folded in, in ``identification.json`` form (``qomni export-fmu``
+    exports it): the base parameters' shift δp of the final fit, plus the accepted effects that the
+    paper's parameters can carry (``diagnosis.diagnose.FOLDABLE``: a payload's Δm_ch, ΔC_ch; rolling
+    resistance as Δd_cw = c_rr·m_ch·g·r/4). The others are listed under ``not_representable``."""
+    if d.model is None or d.final_fit is None:
+        return None
+    from ident.estimation import P1_NAMES
+    from .diagnose import fold
+
+    r = d.channels[0].context.sheet.geometry.r if d.channels else 0.1
+    p, rest = fold(d.model, d.final_fit, d.accepted, r)
+    data = d.model.to_json_dict()
+    for k, n in enumerate(P1_NAMES):
+        data["parameters"][n]["value"] = float(p[k])
+    data["augmented_by"] = {"diagnosis": d.verdict,
+                            "folded": [c.hypothesis.name for c in d.accepted if c not in rest],
+                            "not_representable": [c.hypothesis.label for c in rest],
+                            "base_shift": "δp of the final diagnosis fit (within the model's prior)"}
+    return data
 
 
 def _finite(x):
@@ -153,6 +176,12 @@ def write_report(d: Diagnosis, out: str | Path) -> tuple[Path, Path]:
     gap = gap_dict(d)
     json_path = out / GAP_JSON
     json_path.write_text(json.dumps(gap, indent=2))
+    augmented = augmented_identification(d)
+    if augmented is not None:
+        (out / AUGMENTED_JSON).write_text(json.dumps(_finite(augmented), indent=2))
+        if d.data_metadata is not None and d.data_metadata.exists():
+            # The data sheet export-fmu needs, so that `qomni export-fmu OUT` works on this directory.
+            (out / "metadata.json").write_text(d.data_metadata.read_text())
     rows = "".join(
         f"<tr><td>{e['rank']}</td><td>{html.escape(e['name'])}</td><td>{html.escape(e['variant'])}</td>"
         f"<td>{e['magnitude']:.4g} {html.escape(e['unit'])}</td>"
