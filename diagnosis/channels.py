@@ -82,6 +82,9 @@ class ChannelData:
         acceleration: (n,) generalized acceleration.
         fitted: (n,) bool, rows used for fitting (moving and away from the edges).
         context: the step's :class:`StepContext`; rows are ``context.keep``-selected.
+        nuisance: (n, m) columns with free coefficients per channel that belong to no effect
+            (kinematic: the constant of integration and the chassis' creep seen by the held side's
+            two wheels; torque: none).
     """
 
     name: str
@@ -95,6 +98,11 @@ class ChannelData:
     acceleration: np.ndarray
     fitted: np.ndarray
     context: StepContext = field(repr=False)
+    nuisance: np.ndarray = field(repr=False, default=None)
+
+    def __post_init__(self):
+        if self.nuisance is None:
+            self.nuisance = np.zeros((len(self.y), 0))
 
     @property
     def residual(self) -> np.ndarray:
@@ -172,9 +180,12 @@ def _kinematic_channels(ctx: StepContext, side: int) -> list[ChannelData]:
         predicted = H1[:, i, side] * (alpha[:, side] - alpha[0, side])
         y = (beta[:, i] - beta[0, i] - predicted)[keep]
         velocity = st.qd[:, 3 + side][keep]
+        held = [k for k in range(4) if abs(H1[0, k, side]) < 1e-12]
+        creep = (beta[:, held] - beta[0, held])[keep]
         out.append(ChannelData(f"{ctx.step}/kinematic_{odometry_wheel(i)}", "kinematic", "rad", i, y,
                                np.zeros((len(y), 0)), np.zeros(len(y)), velocity,
-                               st.qdd[:, 3 + side][keep], np.ones(len(y), dtype=bool), ctx))
+                               st.qdd[:, 3 + side][keep], np.ones(len(y), dtype=bool), ctx,
+                               np.column_stack([np.ones(len(y)), creep])))
     return out
 
 

@@ -31,7 +31,7 @@ from ident.identify import correlation_lag, load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import GRAVITY, LIBRARY, Hypothesis, generic
+from .hypotheses import GRAVITY, LIBRARY, Hypothesis, generic, plausible
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -69,7 +69,7 @@ def combine(fits: list[fitting.Fit], extra: Hypothesis | None = None) -> Hypothe
                               sheet)
 
     return Hypothesis(label, "", names, columns, grid=extra.grid if extra is not None else (None,),
-                      magnitude=magnitude, physical=lambda theta: last.physical(theta[-q:]))
+                      magnitude=magnitude, physical=lambda theta: plausible(last, theta[-q:]))
 
 
 @dataclass
@@ -110,7 +110,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
         q = len(h.parameters)
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
-        physical = bool(h.physical(theta))
+        physical = plausible(h, theta)
         significant = cand.p_value < fitting.ALPHA_MORE and physical and \
             cand.evaluation.shrink_affected >= fitting.MIN_SHRINK_MORE and \
             cand.evaluation.shrink_affected_ci[0] > 0

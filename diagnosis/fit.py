@@ -28,7 +28,7 @@ from scipy import stats
 from ident.estimation import P1_NAMES, IdentificationResult
 
 from .channels import ChannelData
-from .hypotheses import Hypothesis, Magnitude
+from .hypotheses import Hypothesis, Magnitude, plausible
 
 #: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
 WINDOW = 1.0
@@ -61,6 +61,18 @@ def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
     return np.floor(np.asarray(time) / window).astype(int)
 
 
+#: Correlation length of kinematic residuals, s: they are positions (integrated rates), so their noise
+#: wanders far longer than the filter's L; they count one independent row per KINEMATIC_CORRELATION.
+KINEMATIC_CORRELATION = 0.25
+
+
+def channel_lag(ch: ChannelData, lag: int) -> int:
+    """Rows over which the channel's residual stays correlated."""
+    if ch.kind == "kinematic":
+        return max(lag, int(round(KINEMATIC_CORRELATION / ch.context.st.cycle_time)))
+    return lag
+
+
 def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
                  window: float = WINDOW) -> tuple[Problem, Problem]:
     """The fitting problem and the held-out problem.
@@ -79,8 +91,12 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         else:
             fit_rows.append(ch.fitted.copy())
         sel = fit_rows[-1]
-        sigma = float(np.sqrt(np.mean(ch.residual[sel] ** 2))) if sel.any() else 1.0
-        weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(lag)))
+        r = ch.residual[sel]
+        if ch.nuisance.shape[1] and sel.any():   # the noise scale is what the nuisance terms leave
+            coef, *_ = np.linalg.lstsq(ch.nuisance[sel], r, rcond=None)
+            r = r - ch.nuisance[sel] @ coef
+        sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
+        weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
     weights = np.array(weights)
     fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins)
     if holdout is None:
@@ -100,7 +116,7 @@ class Fit:
     theta: np.ndarray               # effect coefficients (q,)
     theta_cov: np.ndarray           # (q, q)
     delta_p: np.ndarray             # (10,)
-    offsets: dict                   # kinematic channel name → offset
+    offsets: dict                   # kinematic channel name → nuisance coefficients
     rss: float                      # weighted, fit rows, including the prior term
     n_eff: float
     n_params: int
@@ -135,8 +151,10 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     kin = [i for i, c in enumerate(problem.channels) if c.kind == "kinematic"]
     q = len(h.parameters) if h is not None and free else 0
     n_base = len(P1_NAMES)
-    n_cols = n_base + len(kin) + q
-    blocks_A, blocks_b = [], []
+    widths = [problem.channels[i].nuisance.shape[1] for i in kin]
+    starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+    n_cols = n_base + int(starts[-1]) + q
+    blocks_A, blocks_b, used = [], [], []
     any_effect = False
     for i, ch in enumerate(problem.channels):
         rows = problem.fit_rows[i]
@@ -146,7 +164,8 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
         if ch.kind == "torque":
             A[:, :n_base] = ch.base[rows]
         else:
-            A[:, n_base + kin.index(i)] = 1.0
+            j = kin.index(i)
+            A[:, n_base + starts[j]:n_base + starts[j + 1]] = ch.nuisance[rows]
         if q:
             key = (h.label, nonlinear, id(ch))
             cols = cache.get(key) if cache is not None else None
@@ -158,6 +177,7 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
                 A[:, -q:] = cols[rows]
                 any_effect = any_effect or bool(np.any(cols[rows] != 0))
         blocks_A.append(A * problem.weights[i])
+        used.append(i)
         target = ch.residual[rows]
         shift = _shift(h, nonlinear, theta0, ch, cache)
         if shift is not None:
@@ -175,11 +195,12 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     x, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
     x = x / scale
     rss = float(np.sum((b - A @ x) ** 2))
-    n_eff = sum(len(blk) for blk in blocks_b) / lag
+    n_eff = sum(len(blk) / channel_lag(problem.channels[i], lag) for blk, i in zip(blocks_b, used))
     dof = max(n_eff - n_cols, 1.0)
     s2 = max(rss / dof, 1.0)
     cov = np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale) * s2
-    offsets = {problem.channels[i].name: float(x[n_base + j]) for j, i in enumerate(kin)}
+    offsets = {problem.channels[i].name: x[n_base + starts[j]:n_base + starts[j + 1]].copy()
+               for j, i in enumerate(kin)}
     theta = x[n_cols - q:] if q else np.zeros(0)
     theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
     if q and theta0 is not None:
@@ -192,8 +213,8 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
 
 def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
                        cache: dict | None = None) -> np.ndarray:
-    """What ``fit`` leaves of channel i's residual on ``rows``. Kinematic channels' offsets are re-set
-    to the mean over those rows (the constant of integration is not a property of the vehicle)."""
+    """What ``fit`` leaves of channel i's residual on ``rows``. Kinematic channels' nuisance terms
+    (constant, chassis creep) are re-fitted on those rows."""
     ch = problem.channels[i]
     r = ch.residual[rows].copy()
     if ch.kind == "torque":
@@ -210,7 +231,11 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
         if cols is not None:
             r -= cols[rows] @ fit.theta
     if ch.kind == "kinematic" and len(r):
-        r -= r.mean()
+        # The constant of integration and the chassis' creep are no property of the vehicle's effects:
+        # projected out on the evaluated rows.
+        N = ch.nuisance[rows]
+        coef, *_ = np.linalg.lstsq(N, r, rcond=None)
+        r -= N @ coef
     return r
 
 
@@ -378,7 +403,7 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     evaluation = evaluate(hold_problem, base, best, cache)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
-    physical = bool(h.physical(best.theta))
+    physical = plausible(h, best.theta)
     cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical)
     if best.theta0 is not None and np.any(best.theta0 != 0):
         cand.notes.append("the model's own run already shows a level "

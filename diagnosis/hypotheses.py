@@ -69,6 +69,8 @@ class Hypothesis:
         magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
         physical: ``θ -> bool``: whether the fitted sign is physically possible.
         absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
+        relevant: smallest |θ| (first coefficient) of practical relevance; a smaller effect is not
+            reported as significant however well the data determine it.
     """
 
     name: str
@@ -80,10 +82,16 @@ class Hypothesis:
     physical: Callable[[np.ndarray], bool] = lambda theta: True
     absorbed_by: tuple[str, ...] = ()
     nonlinear_unit: str = ""
+    relevant: float = 0.0
 
     @property
     def label(self) -> str:
         return f"{self.name} ({self.variant})" if self.variant else self.name
+
+
+def plausible(h: Hypothesis, theta: np.ndarray) -> bool:
+    """Physically possible and of practically relevant size."""
+    return bool(h.physical(theta)) and (h.relevant == 0 or abs(float(theta[0])) >= h.relevant)
 
 
 # --- helpers ---------------------------------------------------------------------------------------
@@ -220,10 +228,13 @@ def _rolling_columns(ch: ChannelData, _):
     return _project(ch, Q, smooth=True)[:, None]
 
 
+#: c_rr below 0.003 (a sixth of the wheel's own Coulomb friction as an equivalent c_rr) is within what
+#: a small error of another effect (e.g. the wheel radius' lever on d_cw) shifts; tyres on floors have
+#: 0.005–0.02.
 ROLLING_RESISTANCE = Hypothesis(
     "rolling_resistance", "", ("c_rr",), _rolling_columns,
     magnitude=_linear_magnitude(0, "-", "rolling-resistance coefficient"),
-    physical=lambda t: t[0] > 0, absorbed_by=("d_cw",))
+    physical=lambda t: t[0] > 0, absorbed_by=("d_cw",), relevant=0.003)
 
 
 # --- actuator delay ----------------------------------------------------------------------------------
@@ -267,8 +278,11 @@ TORQUE_CONSTANT = tuple(
 
 
 # --- kinematic hypotheses ----------------------------------------------------------------------------
-@_kinematic_only
 def _radius_columns(ch: ChannelData, _):
+    if ch.kind == "torque":
+        # The same ε = r_nominal/r − 1 scales the wheels' lever on every generalized force: to first
+        # order the applied input is (1 + ε)·H_kᵀBu while the model reads H_kᵀBu.
+        return -_project(ch, _input_torque(ch))[:, None]
     st, side = ch.context.st, SIDE_INDEX[ch.index]
     H1 = ch.context.H[:, 5 + ch.index, side]
     return ch.rows(H1 * (st.q[:, 3 + side] - st.q[0, 3 + side]))[:, None]
@@ -281,8 +295,10 @@ def _radius_magnitude(theta, cov, nonlinear, sheet):
                      "effective wheel radius")
 
 
+#: 0.25 % of r (0.25 mm on the prototype): the soft contact alone flattens a wheel by about as much, and
+#: two runs of the same vehicle differ by ~0.03 %; a real radius error of worn or other tyres is 1–5 %.
 WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_columns,
-                          magnitude=_radius_magnitude)
+                          magnitude=_radius_magnitude, relevant=0.0025)
 
 BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
 
@@ -422,4 +438,4 @@ def generic(channel: str) -> Hypothesis:
                           float(np.linalg.norm(theta)), (0.0, 0.0), "-", "black-box coefficients"))
 
 
-__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "GRAVITY", "generic"]
+__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "GRAVITY", "generic", "plausible"]

@@ -62,7 +62,7 @@ def test_single_effect_is_ranked_first_with_its_magnitude(suite):
 def test_two_effects_at_once_are_both_named(suite):
     work, results = suite
     r = results["incline+radius"]
-    assert set(r.accepted) == {"incline", "wheel_radius"}
+    assert set(r.accepted) == {"incline", "wheel_radius"}, r.verdict
     gap = json.loads((work / "incline+radius" / "gap" / "gap.json").read_text())
     radius = next(e for e in gap["accepted"] if e["name"] == "wheel_radius")
     assert radius["magnitude"] == pytest.approx(0.096, abs=0.001)
@@ -92,5 +92,5 @@ def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
                           "--data", str(work / "ideal"), "--out", str(tmp_path / "d")],
                          capture_output=True, text=True)
     assert out.returncode == 2
-    assert "identification.json" in out.stdout + out.stderr
+    assert "does not exist" in out.stdout + out.stderr
     assert not (tmp_path / "d").exists()
