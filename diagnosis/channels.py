@@ -27,6 +27,7 @@ from ident.estimation import IdentificationResult
 from ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
                             step_blocks, StepSignals)
 from ident.recording import Signals
+from ident.symbolic import WHEELS
 
 #: Coordinates of the lane change (validation step) that become torque channels.
 LANE_CHANGE_COORDINATES = ("x_ch",)
@@ -151,8 +152,7 @@ def _torque_channels(ctx: StepContext, coordinates, model: IdentificationResult)
     p = model.p
     names = MODE_COORDINATES[ctx.k]
     for block in step_blocks(ctx.st, ctx.sheet, coordinates):
-        coord = block.channel[0].split("/")[1] if not isinstance(block.channel, str) else \
-            block.channel.split("/")[1]
+        coord = str(np.atleast_1d(block.channel)[0]).split("/")[1]
         j = names.index(coord)
         keep = ctx.keep
         theta = block.Theta[keep]
@@ -182,15 +182,11 @@ def _kinematic_channels(ctx: StepContext, side: int) -> list[ChannelData]:
         velocity = st.qd[:, 3 + side][keep]
         held = [k for k in range(4) if abs(H1[0, k, side]) < 1e-12]
         creep = (beta[:, held] - beta[0, held])[keep]
-        out.append(ChannelData(f"{ctx.step}/kinematic_{odometry_wheel(i)}", "kinematic", "rad", i, y,
+        out.append(ChannelData(f"{ctx.step}/kinematic_{WHEELS[i]}", "kinematic", "rad", i, y,
                                np.zeros((len(y), 0)), np.zeros(len(y)), velocity,
                                st.qdd[:, 3 + side][keep], np.ones(len(y), dtype=bool), ctx,
                                np.column_stack([np.ones(len(y)), creep])))
     return out
-
-
-def odometry_wheel(i: int) -> str:
-    return ("fl", "rl", "fr", "rr")[i]
 
 
 def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:

@@ -110,13 +110,14 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
         q = len(h.parameters)
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
-        physical = plausible(h, theta)
+        physical = cand.physical  # the joint hypothesis checks the added effect's part
         significant = cand.p_value < fitting.ALPHA_MORE and physical and \
             cand.evaluation.shrink_affected >= fitting.MIN_SHRINK_MORE and \
             cand.evaluation.shrink_affected_ci[0] > 0
         if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
             sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
-                                    cand.p_value, cand.evaluation, fitting.collinearity(fp, h, cand.fit.nonlinear),
+                                    cand.p_value, cand.evaluation,
+                                    fitting.collinearity(fp, h, cand.fit.nonlinear, cache),
                                     physical, True, ["accepted in forward selection with "
                                                      + ", ".join(c.hypothesis.label for c in accepted)])
             best = (sub, cand.fit)

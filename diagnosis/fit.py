@@ -125,21 +125,23 @@ class Fit:
     shift_hypothesis: Hypothesis | None = None  # a base fit holding a hypothesis at θ₀
 
 
+def cached_columns(h: Hypothesis, nonlinear, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
+    """``h.columns(ch, nonlinear)``, computed once per (hypothesis, non-linear value, channel) in
+    ``cache``."""
+    if cache is None:
+        return h.columns(ch, nonlinear)
+    key = (h.label, nonlinear, id(ch))
+    if key not in cache:
+        cache[key] = h.columns(ch, nonlinear)
+    return cache[key]
+
+
 def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
     """Φ_e θ₀ of one channel (the reference's level of the hypothesis), or None."""
     if h is None or theta0 is None:
         return None
-    key = (h.label, nonlinear, id(ch))
-    cols = cache.get(key) if cache is not None else None
-    if cols is None:
-        cols = h.columns(ch, nonlinear)
-        if cache is not None:
-            cache[key] = cols
+    cols = cached_columns(h, nonlinear, ch, cache)
     return None if cols is None else cols @ theta0
-
-
-def _columns(h: Hypothesis | None, ch: ChannelData, nonlinear) -> np.ndarray | None:
-    return None if h is None else h.columns(ch, nonlinear)
 
 
 def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, nonlinear, lag: int,
@@ -168,12 +170,7 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
             j = kin.index(i)
             A[:, n_base + starts[j]:n_base + starts[j + 1]] = ch.nuisance[rows]
         if q:
-            key = (h.label, nonlinear, id(ch))
-            cols = cache.get(key) if cache is not None else None
-            if cols is None:
-                cols = _columns(h, ch, nonlinear)
-                if cache is not None:
-                    cache[key] = cols
+            cols = cached_columns(h, nonlinear, ch, cache)
             if cols is not None:
                 A[:, -q:] = cols[rows]
                 any_effect = any_effect or bool(np.any(cols[rows] != 0))
@@ -225,10 +222,7 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
         if shift is not None:
             r -= shift[rows]
     if fit.hypothesis is not None and len(fit.theta):
-        key = (fit.hypothesis.label, fit.nonlinear, id(ch))
-        cols = cache.get(key) if cache is not None else None
-        if cols is None:
-            cols = fit.hypothesis.columns(ch, fit.nonlinear)
+        cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
         if cols is not None:
             r -= cols[rows] @ fit.theta
     if ch.kind == "kinematic" and len(r):
@@ -331,9 +325,7 @@ def collinearity(problem: Problem, h: Hypothesis, nonlinear, cache: dict | None 
         rows = problem.fit_rows[i]
         if ch.kind != "torque" or not rows.any():
             continue
-        c = (cache or {}).get((h.label, nonlinear, id(ch)))
-        if c is None:
-            c = h.columns(ch, nonlinear)
+        c = cached_columns(h, nonlinear, ch, cache)
         if c is None:
             continue
         cols.append(c[rows] * problem.weights[i])

@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ident import filtering
+from ident import filtering, kinematics
 from ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
 
 from .channels import ChannelData
@@ -365,7 +365,7 @@ def _heavy_columns(ch: ChannelData, _):
     w, wd = v[:, 2], acc[:, 2]
     alpha, alpha_d, alpha_dd = st.q[:, 3:5], st.qd[:, 3:5], st.qdd[:, 3:5]
     if ctx.k in (3, 4):
-        alpha = ctx.H[:, 3:5, 0] * 0 + _mode_alpha(ctx)
+        alpha = np.broadcast_to(kinematics.mode_alpha(ctx.k, g), alpha.shape)
         alpha_d = alpha_dd = np.zeros_like(alpha)
     Q = np.zeros((n, 9))
     lumped = np.zeros((n, 9))
@@ -393,11 +393,6 @@ def _heavy_columns(ch: ChannelData, _):
         lumped[:, 2] += float(c0 @ c0) * wd
         lumped[:, 3 + side] += g.a**2 * alpha_dd[:, side]
     return _project(ch, Q - lumped)[:, None]
-
-
-def _mode_alpha(ctx):
-    from ident import kinematics
-    return kinematics.mode_alpha(ctx.k, ctx.sheet.geometry)[None, :]
 
 
 HEAVY_STEERING_UNITS = Hypothesis(

@@ -13,8 +13,6 @@ import math
 import numpy as np
 from scipy import signal, stats
 
-from ident.identify import VELOCITY_THRESHOLD
-
 from .channels import ChannelData
 
 #: Frequency bands of the residual spectrum, Hz (ω_g = 40 rad/s ≈ 6.4 Hz is the filter's cut-off).
@@ -22,6 +20,7 @@ BANDS = ((0.0, 0.5), (0.5, 2.0), (2.0, 6.4), (6.4, 25.0))
 #: Lags of the whiteness test (Ljung–Box), in decimated samples.
 LJUNG_BOX_LAGS = 10
 WINDOW = 2.0  # s, time-window breakdown
+KINEMATIC_STANDSTILL = 0.05  # rad/s of steering below which a kinematic row counts as standstill
 
 
 def _rms(x: np.ndarray) -> float:
@@ -33,9 +32,8 @@ def regimes(ch: ChannelData) -> dict:
     median |ṡ|), low/high |s̈| and small/large |α| (split at 0.2 rad)."""
     r = ch.residual
     v, acc = np.abs(ch.velocity), np.abs(ch.acceleration)
-    thr = VELOCITY_THRESHOLD.get(ch.name.split("/")[1], VELOCITY_THRESHOLD["*"]) \
-        if ch.kind == "torque" else 0.05
-    moving = v > thr
+    # Torque channels: the rows above the stiction threshold (ident.identify.VELOCITY_THRESHOLD).
+    moving = ch.fitted if ch.kind == "torque" else v > KINEMATIC_STANDSTILL
     out = {"near_standstill": {"rms": _rms(r[~moving]), "rows": int((~moving).sum())}}
     if moving.any():
         v_med = float(np.median(v[moving]))
