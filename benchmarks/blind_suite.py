@@ -3,6 +3,7 @@ emulator, two effects at once), in one command:
 
     python benchmarks/blind_suite.py                   # full: 5 seeds × 2 magnitudes, full campaigns
     python benchmarks/blind_suite.py --quick           # 1 seed, high magnitude, quick campaigns
+    python benchmarks/blind_suite.py --campaigns quick # full size on quick campaigns (~1 h on 2 cores)
     python benchmarks/blind_suite.py --ray ADDRESS     # the cases as tasks on an existing Ray cluster
 
 Prints top-1 accuracy, false positives and held-out shrinkage per effect and writes
@@ -27,24 +28,31 @@ from qomni.blind_suite import cases, run_suite, write_results  # noqa: E402
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 seed, high magnitude, quick campaigns")
+    ap.add_argument("--campaigns", choices=("quick", "full"), default=None,
+                    help="campaign length (default: quick with --quick, else full)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per effect and magnitude (default 5)")
     ap.add_argument("--work", type=Path, default=Path("runs/blind_suite"), help="work directory")
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (default: cores)")
     ap.add_argument("--ray", default=None, metavar="ADDRESS", help="run on an existing Ray cluster")
     ap.add_argument("--effects", nargs="*", default=None, help="only these suite entries")
+    ap.add_argument("--recorded-only", action="store_true",
+                    help="diagnose only the cases already recorded in --work (no new campaigns)")
     args = ap.parse_args(argv)
     console = Console()
     seeds = args.seeds or (1 if args.quick else 5)
     todo = cases(seeds=seeds, magnitudes=(1,) if args.quick else (0, 1), entries=args.effects,
                  ideal=max(seeds, 2))
-    console.print(f"{len(todo)} cases in {args.work} ({'quick' if args.quick else 'full'} campaigns)")
+    campaigns = args.campaigns or ("quick" if args.quick else "full")
+    if args.recorded_only:
+        todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
+    console.print(f"{len(todo)} cases in {args.work} ({campaigns} campaigns)")
     started = time.perf_counter()
 
     def show(r):
         mark = "[green]✓[/]" if r.top1 and not r.false_positives else "[red]✗[/]"
         console.print(f"{mark} {r.case.name:40s} → {r.verdict or r.error}  ({r.wall_time:.0f} s)")
 
-    results = run_suite(todo, args.work, quick=args.quick, workers=args.workers, ray_address=args.ray,
+    results = run_suite(todo, args.work, quick=campaigns == "quick", workers=args.workers, ray_address=args.ray,
                         on_result=show)
     summary = write_results(results, args.work / "blind_suite.json")
     table = Table(title="Blind check per effect")

@@ -11,6 +11,11 @@ Two kinds of channel, one per (campaign step, quantity):
   sensor are tied by the rolling constraint (1): ``β_i − β_i(t₀) = (H₁)_{β_i}(α − α(t₀))``. The model
   predicts a residual of zero up to a constant; wheel radius, backlash and coupling compliance break it.
 
+Rows where a drive is at its torque limit (and ``TRACTION_MARGIN`` around them) are not fitted in any
+channel: a wheel driven that hard may spin or skid, and then neither the rolling constraint nor the
+model's generalized forces hold. A kinematic channel's constant of integration is free per stretch
+between such rows, since a wheel that slid has lost its reference.
+
 A channel carries everything a hypothesis needs to build its columns (``ChannelData.context``), so the
 hypotheses in :mod:`diagnosis.hypotheses` never re-read the run directory.
 """
@@ -19,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from ident import filtering, kinematics, odometry
 from ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
@@ -33,6 +39,10 @@ from ident.symbolic import WHEELS
 LANE_CHANGE_COORDINATES = ("x_ch",)
 #: Rows cut at both ends of every step: zero-phase filter edge effects (``filtering.padlen``).
 EDGE_ROWS = 60
+#: A drive at this fraction of its ``max_torque`` is at its traction limit; rows within
+#: TRACTION_MARGIN s of it are not fitted (the filter's smear and the wheel's spin-down).
+TRACTION_LIMIT = 0.9
+TRACTION_MARGIN = 0.1
 
 
 @dataclass
@@ -48,6 +58,7 @@ class StepContext:
             at the Coulomb cutoff — far finer than the 14-bit steering sensor.
         keep: (N,) bool, rows away from the filter's edges.
         p: (11,) the diagnosed model's parameters, order (18).
+        traction_limited: (N,) bool, rows at or near a drive's torque limit (not fitted).
     """
 
     st: StepSignals
@@ -57,6 +68,11 @@ class StepContext:
     H: np.ndarray
     alpha_dot_encoder: np.ndarray
     keep: np.ndarray
+    traction_limited: np.ndarray = None
+
+    def __post_init__(self):
+        if self.traction_limited is None:
+            self.traction_limited = np.zeros(len(self.keep), dtype=bool)
 
     @property
     def k(self) -> int:
@@ -144,7 +160,34 @@ def step_context(sig: Signals, sheet: DataSheet, p: np.ndarray, pose: np.ndarray
     H = kinematics.H(st.k, alpha, sheet.geometry, alpha_v=alpha_v)
     keep = np.zeros(len(st.time), dtype=bool)
     keep[EDGE_ROWS:len(keep) - EDGE_ROWS] = True
-    return StepContext(st, sheet, np.asarray(p, dtype=float), pose, H, _alpha_dot_from_encoders(st, sheet), keep)
+    return StepContext(st, sheet, np.asarray(p, dtype=float), pose, H, _alpha_dot_from_encoders(st, sheet),
+                       keep, traction_limited(sig.motor_torque, sheet))
+
+
+def traction_limited(motor_torque: np.ndarray, sheet: DataSheet) -> np.ndarray:
+    """(N,) bool: rows within ``TRACTION_MARGIN`` of any drive at ``TRACTION_LIMIT``·max_torque.
+
+    Args:
+        motor_torque: (N, 4) measured motor torques, N m motor side.
+    """
+    at_limit = np.any(np.abs(motor_torque) >= TRACTION_LIMIT * sheet.drive.max_torque, axis=1)
+    if not at_limit.any():
+        return at_limit
+    rows = max(int(round(TRACTION_MARGIN / sheet.drive.cycle_time)), 1)
+    return ndimage.binary_dilation(at_limit, np.ones(2 * rows + 1, dtype=bool))
+
+
+def _segments(free: np.ndarray) -> np.ndarray:
+    """(n, m) indicator columns of the m stretches of ``free`` rows between limited rows (at least
+    one column)."""
+    start = np.flatnonzero(free & ~np.concatenate([[False], free[:-1]]))
+    label = np.cumsum(np.isin(np.arange(len(free)), start)) - 1
+    m = max(len(start), 1)
+    out = np.zeros((len(free), m))
+    out[free, label[free].clip(0)] = 1.0
+    if not free.any():
+        out[:, 0] = 1.0
+    return out
 
 
 def _torque_channels(ctx: StepContext, coordinates, model: IdentificationResult) -> list[ChannelData]:
@@ -164,7 +207,7 @@ def _torque_channels(ctx: StepContext, coordinates, model: IdentificationResult)
         unit = "N" if coord in ("x_ch", "y_ch") else "N m"
         out.append(ChannelData(f"{ctx.step}/{coord}", "torque", unit, j, y, theta[:, :10],
                                theta[:, :10] @ p[:10], velocity, sdd,
-                               np.abs(velocity) > threshold, ctx))
+                               (np.abs(velocity) > threshold) & ~ctx.traction_limited[keep], ctx))
     return out
 
 
@@ -182,10 +225,11 @@ def _kinematic_channels(ctx: StepContext, side: int) -> list[ChannelData]:
         velocity = st.qd[:, 3 + side][keep]
         held = [k for k in range(4) if abs(H1[0, k, side]) < 1e-12]
         creep = (beta[:, held] - beta[0, held])[keep]
+        free = ~ctx.traction_limited[keep]
         out.append(ChannelData(f"{ctx.step}/kinematic_{WHEELS[i]}", "kinematic", "rad", i, y,
                                np.zeros((len(y), 0)), np.zeros(len(y)), velocity,
-                               st.qdd[:, 3 + side][keep], np.ones(len(y), dtype=bool), ctx,
-                               np.column_stack([np.ones(len(y)), creep])))
+                               st.qdd[:, 3 + side][keep], free, ctx,
+                               np.column_stack([_segments(free), creep])))
     return out
 
 

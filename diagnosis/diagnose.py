@@ -39,6 +39,9 @@ MAX_EFFECTS = 3
 GENERIC_SHRINK = 0.2
 VERDICT_NONE = "no significant unmodelled effect"
 VERDICT_UNEXPLAINED = "unexplained structure remains"
+#: Share of torque-channel rows at a drive's torque limit above which the verdict says so first: the
+#: diagnosis then rests on the few rows left (``diagnosis.channels.traction_limited``).
+TRACTION_VERDICT = 0.5
 
 
 def combine(fits: list[fitting.Fit], extra: Hypothesis | None = None) -> Hypothesis:
@@ -191,6 +194,11 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         verdict = VERDICT_UNEXPLAINED + " in " + ", ".join(c.hypothesis.variant for c in unexplained)
     else:
         verdict = VERDICT_NONE
+    torque_rows = [ch.rows(ch.context.traction_limited) for ch in chans if ch.kind == "torque"]
+    limited = float(np.concatenate(torque_rows).mean()) if torque_rows else 0.0
+    if limited > TRACTION_VERDICT:
+        verdict = (f"drives at their torque limit in {100 * limited:.0f} % of the rows (wheels may slip; "
+                   f"those rows are not fitted): {verdict}")
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}

@@ -256,7 +256,7 @@ def _delay_magnitude(theta, cov, cycles, sheet):
 
 
 ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), _delay_columns, DELAY_STEPS,
-                            magnitude=_delay_magnitude, physical=lambda t: 0.3 < t[0] < 1.5,
+                            magnitude=_delay_magnitude, physical=lambda t: 0.3 < t[0] < 3.0,
                             nonlinear_unit="cycles")
 
 

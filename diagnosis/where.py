@@ -83,7 +83,7 @@ def whiteness(ch: ChannelData, lag: int) -> dict:
     """Ljung–Box test on the residual decimated by the correlation length L: p < 0.001 says the
     residual is structured, not noise."""
     r = ch.residual[ch.fitted][::max(lag, 1)]
-    r = r - r.mean()
+    r = r - r.mean() if len(r) else r
     n = len(r)
     h = min(LJUNG_BOX_LAGS, n // 4)
     if n < 8 or h < 1 or not np.any(r):
@@ -102,6 +102,8 @@ def input_correlation(ch: ChannelData, lag: int) -> dict:
     else:
         inputs = {"generalized_input": ch.y, "velocity": ch.velocity}
     r = ch.residual[ch.fitted]
+    if not len(r):
+        return {"band_99": float("nan")}
     r = r - r.mean()
     n_eff = max(len(r) / max(lag, 1), 1.0)
     band = 2.58 / math.sqrt(n_eff)
@@ -135,6 +137,7 @@ def breakdown(channels: list[ChannelData], lag: int) -> dict:
             "rms_residual": _rms(ch.residual[fitted]),
             "nrmse": _rms(ch.residual[fitted]) / rms_y if ch.kind == "torque" and rms_y > 0 else None,
             "rows": int(fitted.sum()),
+            "traction_limited": float(ch.rows(ch.context.traction_limited).mean()),
             "regimes": regimes(ch), "bands": bands(ch), "windows": windows(ch),
             "whiteness": whiteness(ch, lag), "input_correlation": input_correlation(ch, lag),
         }

@@ -1,0 +1,61 @@
+"""Scoring of the blind suite and the traction-limit rows of the diagnosis, without campaigns."""
+import numpy as np
+import pytest
+
+from diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
+from ident.datasheet import DataSheet
+from qomni.blind_suite import Case, CaseResult, cases, score
+
+
+def _result(entry, truth, variants, accepted, accepted_variants):
+    case = Case(f"{entry}_high_s1", {}, truth, 1, "high", entry, variants)
+    return CaseResult(case, accepted=accepted, accepted_variants=accepted_variants)
+
+
+def test_the_wrong_instance_of_the_right_effect_is_not_top1():
+    wrong = _result("stribeck_wheels", ["stribeck"], {"stribeck": "joints=wheels"},
+                    ["stribeck"], ["joints=steering"])
+    right = _result("stribeck_wheels", ["stribeck"], {"stribeck": "joints=wheels"},
+                    ["stribeck"], ["joints=wheels"])
+    assert not wrong.top1 and wrong.false_positives == ["stribeck"]
+    assert right.top1 and right.false_positives == []
+    s = score([wrong, right])
+    assert s["top1_accuracy"] == 0.5
+    assert s["per_effect"]["stribeck_wheels"] == {"cases": 2, "top1": 1, "false_positives": 1,
+                                                  "median_holdout_shrink": None,
+                                                  "min_holdout_shrink": None}
+
+
+def test_suite_cases_say_which_drive_and_joints():
+    by_name = {c.name: c for c in cases(seeds=2, magnitudes=(0, 1))}
+    tc = [c for c in by_name.values() if c.entry == "torque_constant_error"]
+    assert {c.variants["torque_constant_error"] for c in tc} <= {"drive fl", "drive rl", "drive fr", "drive rr"}
+    assert all(c.variants["torque_constant_error"] == f"drive {c.effects['torque_constant_error']['drive']}"
+               for c in tc)
+    assert all(c.variants == {"stribeck": "joints=steering"} for c in by_name.values()
+               if c.entry == "stribeck_steering")
+    assert all(c.variants == {} for c in by_name.values() if c.entry == "payload")
+    pairs = [c for c in by_name.values() if len(c.truth) == 2]
+    assert [c.name for c in pairs] == ["incline_high+wheel_radius_high_s600",
+                                       "actuator_delay_low+backlash_high_s601"]
+    assert pairs[1].effects["actuator_delay"]["delay"] < 0.01
+
+
+def test_traction_limited_rows_are_widened_by_the_margin():
+    sheet = DataSheet.load()
+    u = np.zeros((500, 4))
+    u[200, 2] = -TRACTION_LIMIT * sheet.drive.max_torque
+    limited = traction_limited(u, sheet)
+    rows = int(round(0.1 / sheet.drive.cycle_time))
+    assert limited.sum() == 2 * rows + 1
+    assert limited[200 - rows] and limited[200 + rows] and not limited[200 + rows + 1]
+    assert not traction_limited(u * 0.99, sheet).any()
+
+
+@pytest.mark.parametrize("free, expected", [
+    ([1, 1, 1], [[1], [1], [1]]),
+    ([1, 0, 1, 1, 0], [[1, 0], [0, 0], [0, 1], [0, 1], [0, 0]]),
+    ([0, 1, 1], [[0], [1], [1]]),
+])
+def test_each_stretch_between_limited_rows_gets_its_own_constant(free, expected):
+    assert _segments(np.array(free, dtype=bool)).tolist() == expected
