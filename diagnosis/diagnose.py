@@ -127,6 +127,37 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
     return best
 
 
+#: Held-out shrinkage the wheel joints' Stribeck variant must reach in some step without steering
+#: motion (modes 2–4) to be preferred over the steering joints' variant.
+WHEEL_FRICTION_EVIDENCE = 0.03
+
+
+def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered: set[str]) -> None:
+    """Decide between the two Stribeck variants where they differ.
+
+    In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
+    joints and of the steering joints shape the steering steps alike, and the steering variant usually
+    fits them a little better. Only steps in which the wheels turn without steering (modes 2–4) tell
+    them apart: there the steering joints' variant has nothing to explain. When the wheel variant
+    removes at least ``WHEEL_FRICTION_EVIDENCE`` of the held-out residual of such a step and the
+    steering variant does not, the wheel variant is the one reported significant."""
+    by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
+    wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
+    if wheels is None or steering is None or not steering.significant:
+        return
+
+    def evidence(c):
+        return max((s.shrink for s in c.evaluation.channels if s.name in unsteered), default=0.0)
+
+    if evidence(wheels) >= WHEEL_FRICTION_EVIDENCE > evidence(steering):
+        steering.significant = False
+        steering.notes.append("the wheel joints' variant also explains the steps without steering "
+                              "motion; this one does not")
+        wheels.significant = wheels.p_value < fitting.ALPHA and wheels.physical
+        wheels.notes.append(f"preferred over the steering joints: removes {100 * evidence(wheels):.0f} % "
+                            "held out in a step without steering motion")
+
+
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
              *, reference_dir: str | Path | None = None, simulate: bool = True,
              model_source: str = "") -> Diagnosis:
@@ -163,6 +194,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
                               for h in LIBRARY) if c is not None]
+    _tell_friction_joints_apart(candidates, {ch.name for ch in chans if ch.context.k != 1})
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
     first = next((c for c in candidates if c.significant), None)

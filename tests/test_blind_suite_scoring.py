@@ -59,3 +59,25 @@ def test_traction_limited_rows_are_widened_by_the_margin():
 ])
 def test_each_stretch_between_limited_rows_gets_its_own_constant(free, expected):
     assert _segments(np.array(free, dtype=bool)).tolist() == expected
+
+
+def _stribeck(variant, significant, shrinks, p_value=1e-3):
+    from types import SimpleNamespace as NS
+    return NS(hypothesis=NS(name="stribeck", variant=variant), significant=significant, p_value=p_value,
+              physical=True, notes=[],
+              evaluation=NS(channels=[NS(name=n, shrink=s) for n, s in shrinks.items()]))
+
+
+def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
+    from diagnosis.diagnose import _tell_friction_joints_apart
+    unsteered = {"straight/x_ch", "rotation/gamma_ch"}
+    # wheel-joint friction: both variants fit the steering steps, only the wheels' the rotation
+    wheels = _stribeck("joints=wheels", False, {"steer_left/alpha_l": 0.3, "rotation/gamma_ch": 0.13})
+    steering = _stribeck("joints=steering", True, {"steer_left/alpha_l": 0.5, "rotation/gamma_ch": -0.0})
+    _tell_friction_joints_apart([steering, wheels], unsteered)
+    assert wheels.significant and not steering.significant
+    # steering-joint friction: the wheel variant makes the unsteered steps no better
+    wheels = _stribeck("joints=wheels", True, {"steer_left/alpha_l": 0.3, "straight/x_ch": -0.15})
+    steering = _stribeck("joints=steering", True, {"steer_left/alpha_l": 0.5, "straight/x_ch": 0.0})
+    _tell_friction_joints_apart([steering, wheels], unsteered)
+    assert steering.significant
