@@ -68,11 +68,7 @@ class StepContext:
     H: np.ndarray
     alpha_dot_encoder: np.ndarray
     keep: np.ndarray
-    traction_limited: np.ndarray = None
-
-    def __post_init__(self):
-        if self.traction_limited is None:
-            self.traction_limited = np.zeros(len(self.keep), dtype=bool)
+    traction_limited: np.ndarray
 
     @property
     def k(self) -> int:
@@ -180,12 +176,10 @@ def traction_limited(motor_torque: np.ndarray, sheet: DataSheet) -> np.ndarray:
 def _segments(free: np.ndarray) -> np.ndarray:
     """(n, m) indicator columns of the m stretches of ``free`` rows between limited rows (at least
     one column)."""
-    start = np.flatnonzero(free & ~np.concatenate([[False], free[:-1]]))
-    label = np.cumsum(np.isin(np.arange(len(free)), start)) - 1
-    m = max(len(start), 1)
-    out = np.zeros((len(free), m))
-    out[free, label[free].clip(0)] = 1.0
-    if not free.any():
+    label, m = ndimage.label(free)
+    out = np.zeros((len(free), max(m, 1)))
+    out[free, label[free] - 1] = 1.0
+    if not m:
         out[:, 0] = 1.0
     return out
 

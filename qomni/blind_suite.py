@@ -49,6 +49,8 @@ MAGNITUDES: dict[str, tuple[dict, dict]] = {
 #: Effects-file table name of each suite entry (two Stribeck variants share one effect).
 TABLE = {"stribeck_wheels": "stribeck", "stribeck_steering": "stribeck"}
 DRIVES = ("fl", "rl", "fr", "rr")
+#: Names of the magnitude indices 0 and 1 of MAGNITUDES.
+LEVELS = ("low", "high")
 #: Pairs run in the two-effect cases: (entry, magnitude index) each. A 10 ms delay together with a
 #: 10 mrad backlash drives the campaign's steering loop into a limit cycle at the torque limit in every
 #: step (the wheels spin; no model of rolling holds), so that pair runs the low delay.
@@ -146,29 +148,31 @@ class CaseResult:
 def cases(seeds: int = 5, magnitudes: tuple[int, ...] = (0, 1), entries=None, ideal: int | None = None,
           pairs: bool = True, first_seed: int = 100) -> list[Case]:
     """The suite: every entry × magnitudes × seeds, ``ideal`` ideal cases (default: ``seeds``) and the
-    two-effect pairs (high magnitude, one seed each)."""
+    two-effect pairs (magnitudes as in PAIRS, one seed each)."""
     out = []
     for entry in entries or MAGNITUDES:
         for m in magnitudes:
             for s in range(seeds):
                 seed = first_seed + 17 * s + m
-                table = seeded_table(entry, m, seed)
-                v = variant(entry, table)
-                out.append(Case(f"{entry}_{'low' if m == 0 else 'high'}_s{seed}",
-                                {effect_name(entry): table}, [effect_name(entry)], seed,
-                                "low" if m == 0 else "high", entry,
-                                {effect_name(entry): v} if v else {}))
+                effects, truth, variants = _effects({entry: seeded_table(entry, m, seed)})
+                out.append(Case(f"{entry}_{LEVELS[m]}_s{seed}", effects, truth, seed, LEVELS[m], entry,
+                                variants))
     for s in range(seeds if ideal is None else ideal):
         out.append(Case(f"ideal_s{first_seed + s}", {}, [], first_seed + s))
     if pairs:
-        level = ("low", "high")
         for i, ((a, ma), (b, mb)) in enumerate(PAIRS):
             seed = first_seed + 500 + i
-            out.append(Case(f"{a}_{level[ma]}+{b}_{level[mb]}_s{seed}",
-                            {effect_name(a): seeded_table(a, ma, seed),
-                             effect_name(b): seeded_table(b, mb, seed)},
-                            [effect_name(a), effect_name(b)], seed, f"{level[ma]}+{level[mb]}"))
+            tables = {a: seeded_table(a, ma, seed), b: seeded_table(b, mb, seed)}
+            effects, truth, variants = _effects(tables)
+            out.append(Case(f"{a}_{LEVELS[ma]}+{b}_{LEVELS[mb]}_s{seed}", effects, truth, seed,
+                            f"{LEVELS[ma]}+{LEVELS[mb]}", variants=variants))
     return out
+
+
+def _effects(tables: dict[str, dict]) -> tuple[dict, list[str], dict]:
+    """Suite entries' tables → (effects-file tables, effect names to report, variants to name)."""
+    variants = {effect_name(e): v for e, t in tables.items() if (v := variant(e, t)) is not None}
+    return {effect_name(e): t for e, t in tables.items()}, [effect_name(e) for e in tables], variants
 
 
 def run_campaign(out: Path, effects: dict, seed: int, quick: bool) -> None:
