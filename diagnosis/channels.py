@@ -6,6 +6,11 @@ Two kinds of channel, one per (campaign step, quantity):
   ``τ̂ = H_kᵀBu`` minus the model ``H_kᵀΘ̂p`` of the paper's (19), filtered exactly as for
   identification (``ident.identify``). Rows in stiction (|ṡ| below ``ident.identify.VELOCITY_THRESHOLD``)
   are kept for the regime breakdown but not fitted: static friction is indeterminate there.
+* **rolling** channels — in the rotation step (mode 4) the chassis twist is fixed by the steering
+  angles, and the eight rolling constraints (1) of the four wheels (lateral and longitudinal) hold three
+  unknowns only. The measured ``A(α)q̇`` projected onto the five redundant directions (the left null space
+  of ``A_ch`` at the mode's nominal angles) and integrated over time is zero up to constants for rolling
+  without slip; tyre slip and backlash break it. Channel ``rotation/rolling_<j>``, j = 1…5, in m.
 * **kinematic** channels — in the steering steps (mode 1, chassis at rest) every wheel of the steered
   side rolls on a circle of radius a about its steering axis, so its encoder angle and the steering
   sensor are tied by the rolling constraint (1): ``β_i − β_i(t₀) = (H₁)_{β_i}(α − α(t₀))``. The model
@@ -35,6 +40,8 @@ from ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, gener
 from ident.recording import Signals
 from ident.symbolic import WHEELS
 
+#: Steps with rolling channels (constant mode angles: a fixed basis of redundant constraints).
+ROLLING_STEPS = ("rotation",)
 #: Coordinates of the lane change (validation step) that become torque channels.
 LANE_CHANGE_COORDINATES = ("x_ch",)
 #: Rows cut at both ends of every step: zero-phase filter edge effects (``filtering.padlen``).
@@ -59,6 +66,7 @@ class StepContext:
         keep: (N,) bool, rows away from the filter's edges.
         p: (11,) the diagnosed model's parameters, order (18).
         traction_limited: (N,) bool, rows at or near a drive's torque limit (not fitted).
+        rolling: the step's redundant rolling constraints (``ROLLING_STEPS`` only, else None).
     """
 
     st: StepSignals
@@ -69,6 +77,7 @@ class StepContext:
     alpha_dot_encoder: np.ndarray
     keep: np.ndarray
     traction_limited: np.ndarray
+    rolling: "RollingConstraints | None" = None
 
     @property
     def k(self) -> int:
@@ -79,25 +88,60 @@ class StepContext:
         return self.st.step
 
 
+@dataclass(frozen=True)
+class RollingConstraints:
+    """The rolling constraints (1) of one step with constant mode angles, reduced to their redundant part.
+
+    Attributes:
+        A: (N, 8, 9) ``A(α)`` at the measured steering angles (rows 0–3 lateral, 4–7 longitudinal, wheel
+            order fl, rl, fr, rr).
+        A_ch_nominal: (8, 3) ``A_ch`` at the mode's nominal angles.
+        basis: (8, 5) orthonormal basis of its left null space: combinations of the constraints that no
+            chassis twist can satisfy or violate.
+        cycle_time: s.
+    """
+
+    A: np.ndarray
+    A_ch_nominal: np.ndarray
+    basis: np.ndarray
+    cycle_time: float
+
+    def integrate(self, violation: np.ndarray) -> np.ndarray:
+        """(N, 8) constraint violation rates, m/s (what ``A q̇`` would be) → (N, 5) their redundant part
+        integrated over the step, m."""
+        return np.cumsum(violation @ self.basis, axis=0) * self.cycle_time
+
+
+def rolling_constraints(st: StepSignals, sheet: DataSheet) -> RollingConstraints:
+    """The step's :class:`RollingConstraints` (mode 3 or 4)."""
+    nominal = kinematics.constraint_matrix(kinematics.mode_alpha(st.k, sheet.geometry)[None, :],
+                                           sheet.geometry)[0, :, :3]
+    u, _, _ = np.linalg.svd(nominal)
+    return RollingConstraints(kinematics.constraint_matrix(st.q[:, 3:5], sheet.geometry), nominal,
+                              u[:, 3:], st.cycle_time)
+
+
 @dataclass
 class ChannelData:
     """One residual channel.
 
     Attributes:
-        name: ``"<step>/<coordinate>"`` (torque) or ``"<step>/kinematic_<wheel>"``.
-        kind: ``"torque"`` or ``"kinematic"``.
-        unit: unit of ``y`` and of the residual (``N m``, ``N`` or ``rad`` wheel side).
-        index: column j of H_k (torque) or wheel index i (kinematic).
-        y: (n,) measured quantity: τ̂ − Θ̂₂p₂ (torque) or the rolling-constraint residual (kinematic).
-        base: (n, 10) regressor Θ̂₁ (torque) or (n, 0) (kinematic).
-        model: (n,) the given model's prediction Θ̂₁p̂₁ (torque) or 0 (kinematic).
+        name: ``"<step>/<coordinate>"`` (torque), ``"<step>/kinematic_<wheel>"`` or
+            ``"<step>/rolling_<j>"``.
+        kind: ``"torque"``, ``"kinematic"`` or ``"rolling"``.
+        unit: unit of ``y`` and of the residual (``N m``, ``N``, ``rad`` wheel side or ``m``).
+        index: column j of H_k (torque), wheel index i (kinematic) or redundant direction j (rolling).
+        y: (n,) measured quantity: τ̂ − Θ̂₂p₂ (torque), the rolling-constraint residual (kinematic) or
+            the integrated redundant constraint (rolling).
+        base: (n, 10) regressor Θ̂₁ (torque) or (n, 0) (kinematic, rolling).
+        model: (n,) the given model's prediction Θ̂₁p̂₁ (torque) or 0 (kinematic, rolling).
         velocity: (n,) generalized velocity of the row (rad/s or m/s).
         acceleration: (n,) generalized acceleration.
         fitted: (n,) bool, rows used for fitting (moving and away from the edges).
         context: the step's :class:`StepContext`; rows are ``context.keep``-selected.
         nuisance: (n, m) columns with free coefficients per channel that belong to no effect
             (kinematic: the constant of integration and the chassis' creep seen by the held side's
-            two wheels; torque: none).
+            two wheels; rolling: the constant of integration; torque: none).
     """
 
     name: str
@@ -156,8 +200,9 @@ def step_context(sig: Signals, sheet: DataSheet, p: np.ndarray, pose: np.ndarray
     H = kinematics.H(st.k, alpha, sheet.geometry, alpha_v=alpha_v)
     keep = np.zeros(len(st.time), dtype=bool)
     keep[EDGE_ROWS:len(keep) - EDGE_ROWS] = True
+    rolling = rolling_constraints(st, sheet) if st.step in ROLLING_STEPS else None
     return StepContext(st, sheet, np.asarray(p, dtype=float), pose, H, _alpha_dot_from_encoders(st, sheet),
-                       keep, traction_limited(sig.motor_torque, sheet))
+                       keep, traction_limited(sig.motor_torque, sheet), rolling)
 
 
 def traction_limited(motor_torque: np.ndarray, sheet: DataSheet) -> np.ndarray:
@@ -227,6 +272,21 @@ def _kinematic_channels(ctx: StepContext, side: int) -> list[ChannelData]:
     return out
 
 
+def _rolling_channels(ctx: StepContext) -> list[ChannelData]:
+    """Integrated redundant rolling constraints of a step in ``ROLLING_STEPS``."""
+    st, keep, rc = ctx.st, ctx.keep, ctx.rolling
+    measured = np.einsum("nij,nj->ni", rc.A[:, :, 3:], st.qd[:, 3:])  # chassis twist left out
+    y = rc.integrate(measured)[keep]
+    coordinate = MODE_COORDINATES[ctx.k][0]
+    j = MODE_COORDINATES[ctx.k].index(coordinate)
+    velocity = np.einsum("ni,ni->n", ctx.H[:, :, j], st.qd)[keep]
+    acceleration = np.einsum("ni,ni->n", ctx.H[:, :, j], st.qdd)[keep]
+    free = ~ctx.traction_limited[keep]
+    return [ChannelData(f"{ctx.step}/rolling_{m + 1}", "rolling", "m", m, y[:, m], np.zeros((len(y), 0)),
+                        np.zeros(len(y)), velocity, acceleration, free, ctx, _segments(free))
+            for m in range(y.shape[1])]
+
+
 def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:
     """(N, 3) odometry pose over the whole recording (paper (3)), from filtered α and β."""
     ts = sheet.drive.cycle_time
@@ -247,7 +307,8 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
         steps: step names to use (default: the four identification steps and the lane change when
             recorded).
     Returns:
-        Torque channels of every step and kinematic channels of the steering steps.
+        Torque channels of every step, kinematic channels of the steering steps and rolling channels
+        of ``ROLLING_STEPS``.
     """
     pose = run_pose(signals, sheet)
     recorded = signals.steps()
@@ -261,4 +322,6 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
         if ctx.k == 1:
             side = MODE_COORDINATES[1].index(coordinates[0])
             out += _kinematic_channels(ctx, side)
+        if ctx.rolling is not None:
+            out += _rolling_channels(ctx)
     return out

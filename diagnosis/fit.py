@@ -3,7 +3,7 @@ intervals, an identifiability check and held-out shrinkage.
 
 Estimation problem for hypothesis e (all channels stacked, rows weighted per channel)::
 
-    r_c = Θ̂₁,c δp + o_c + Φ_e,c θ_e + noise          (torque channel c: Θ̂₁ of (22); kinematic: offset o_c)
+    r_c = Θ̂₁,c δp + o_c + Φ_e,c θ_e + noise          (torque channel c: Θ̂₁ of (22); kinematic, rolling: offsets o_c)
     δp ~ N(0, Σ_prior)                                (the base parameters may move within their
                                                         uncertainty, nothing more)
 
@@ -62,14 +62,14 @@ def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
     return np.floor(np.asarray(time) / window).astype(int)
 
 
-#: Correlation length of kinematic residuals, s: they are positions (integrated rates), so their noise
+#: Correlation length of kinematic and rolling residuals, s: they are positions (integrated rates), so their noise
 #: wanders far longer than the filter's L; they count one independent row per KINEMATIC_CORRELATION.
 KINEMATIC_CORRELATION = 0.25
 
 
 def channel_lag(ch: ChannelData, lag: int) -> int:
     """Rows over which the channel's residual stays correlated."""
-    if ch.kind == "kinematic":
+    if ch.kind != "torque":
         return max(lag, int(round(KINEMATIC_CORRELATION / ch.context.st.cycle_time)))
     return lag
 
@@ -151,7 +151,7 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
 
     ``theta0``: the hypothesis' level in the reference run, taken as part of the base (θ = θ₀ + δθ);
     ``free=False`` keeps θ = θ₀ (the base fit such a hypothesis is tested against)."""
-    kin = [i for i, c in enumerate(problem.channels) if c.kind == "kinematic"]
+    kin = [i for i, c in enumerate(problem.channels) if c.kind != "torque"]
     q = len(h.parameters) if h is not None and free else 0
     n_base = len(P1_NAMES)
     widths = [problem.channels[i].nuisance.shape[1] for i in kin]
@@ -225,7 +225,7 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
         cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
         if cols is not None:
             r -= cols[rows] @ fit.theta
-    if ch.kind == "kinematic" and len(r):
+    if ch.kind != "torque" and len(r):
         # The constant of integration and the chassis' creep are no property of the vehicle's effects:
         # projected out on the evaluated rows.
         N = ch.nuisance[rows]

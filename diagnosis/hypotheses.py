@@ -22,9 +22,10 @@ rolling_resistance         (m_ch g r / 4)·tanh(β̇_i/ε) per wheel           c
 actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled           T_d [s]
 torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
 wheel_radius               (kinematic) predicted rolling angle              r_nominal/r − 1 [-]
-backlash                   (kinematic) ½·sign(u_i)                          gap [rad, wheel side]
+backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
 steering_compliance        (kinematic, rear wheels) coupling torque         1/stiffness [rad/(N m)]
-tire_slip                  lateral-force drag in steered driving            1/C_α [rad/N]
+tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
+                           side forces need slip angles F/C_α
 heavy_steering_units       exact point masses at the wheel centres          m_w [kg]
 =========================  ==============================================  =====================
 """
@@ -114,6 +115,17 @@ def _kinematic_only(fn):
     def wrapped(ch: ChannelData, nonlinear):
         return fn(ch, nonlinear) if ch.kind == "kinematic" else None
     return wrapped
+
+
+def _rolling_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "rolling" else None
+    return wrapped
+
+
+def _rolling(ch: ChannelData, violation: np.ndarray) -> np.ndarray:
+    """(N, 8) constraint-violation rates (m/s) of the step → the rolling channel's rows (n,)."""
+    return ch.rows(ch.context.rolling.integrate(violation)[:, ch.index])
 
 
 def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
@@ -279,6 +291,8 @@ TORQUE_CONSTANT = tuple(
 
 # --- kinematic hypotheses ----------------------------------------------------------------------------
 def _radius_columns(ch: ChannelData, _):
+    if ch.kind == "rolling":
+        return None  # one radius error scales every wheel's rolling alike: a rigid twist, not redundant
     if ch.kind == "torque":
         # The same ε = r_nominal/r − 1 scales the wheels' lever on every generalized force: to first
         # order the applied input is (1 + ε)·H_kᵀBu while the model reads H_kᵀBu.
@@ -303,10 +317,18 @@ WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_co
 BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
 
 
-@_kinematic_only
 def _backlash_columns(ch: ChannelData, _):
-    u = ch.context.st.motor_torque[:, ch.index]
-    return ch.rows(0.5 * np.tanh(u / BACKLASH_TORQUE_SCALE))[:, None]
+    if ch.kind == "torque":
+        return None
+    st = ch.context.st
+    if ch.kind == "kinematic":
+        return ch.rows(0.5 * np.tanh(st.motor_torque[:, ch.index] / BACKLASH_TORQUE_SCALE))[:, None]
+    # The encoder reads the motor, half the gap ahead of the wheel in the direction of the torque: the
+    # longitudinal rows (−r β̇) see the rate of that lead.
+    lead = 0.5 * np.tanh(st.motor_torque / BACKLASH_TORQUE_SCALE)
+    violation = np.zeros((len(st.time), 8))
+    violation[:, 4:] = -ch.context.sheet.geometry.r * np.gradient(lead, st.cycle_time, axis=0)
+    return _rolling(ch, violation)[:, None]
 
 
 BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
@@ -336,23 +358,43 @@ STEERING_COMPLIANCE = Hypothesis(
 
 
 # --- tyre slip ---------------------------------------------------------------------------------------
-@_torque_only
+#: m/s: rolling speed below which a wheel's slip velocity is taken at this floor (a tyre's relaxation
+#: length makes the side force lag at standstill instead of growing without bound).
+SLIP_SPEED_FLOOR = 0.02
+
+
+@_rolling_only
 def _slip_columns(ch: ChannelData, _):
-    if ch.context.k != 2:
-        return np.zeros((len(ch.y), 1))
-    st = ch.context.st
-    v = st.qd[:, :3]
-    # Lateral tyre forces ≈ share of the chassis' centripetal force m·v·ω; a slip angle F/C_α makes
-    # each wheel dissipate F²/C_α·|v| — a drag ∝ (m v ω)² along the path.
-    lateral = ch.context.p[6] * v[:, 0] * v[:, 2] / 4
-    Q = np.zeros((len(v), 9))
-    Q[:, 0] = 4 * lateral**2 * np.tanh(v[:, 0] / 0.01)
-    return _project(ch, Q)[:, None]
+    ctx = ch.context
+    st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
+    A = ctx.rolling.A
+    beta_d = st.qd[:, 5:9]
+    # Longitudinal tyre forces from the drives (wheel side, less the model's wheel friction) and their
+    # generalized chassis force; what the chassis' inertia needs beyond it the side forces must supply.
+    f_long = (ctx.sheet.drive.i_G * st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d) / g.r
+    drive = np.einsum("nij,ni->nj", A[:, 4:8, :3], f_long)
+    v, acc = st.qd[:, :3], st.qdd[:, :3]
+    inertia = np.column_stack([p[6] * (acc[:, 0] - v[:, 2] * v[:, 1]), p[6] * (acc[:, 1] + v[:, 2] * v[:, 0]),
+                               p[7] * acc[:, 2]])
+    required = inertia - drive
+    # Side force F_i = −C_α s_i/|v_i| through the lateral slip velocity s_i of a rigid chassis,
+    # s = E_latᵀδ: the slip twist δ solves E_lat D⁻¹ E_latᵀ δ = −C_α⁻¹·required (D = diag|v_i|).
+    # At the mode's nominal angles: there the side forces of mode 4 (radial) have no moment, and pinv
+    # leaves the yaw share of ``required`` (the torque channel's business) out instead of amplifying it.
+    E = np.broadcast_to(ctx.rolling.A_ch_nominal[0:4].T, (len(st.time), 3, 4))
+    d_inv = 1.0 / np.maximum(g.r * np.abs(beta_d), SLIP_SPEED_FLOOR)
+    K = np.einsum("nik,nk,njk->nij", E, d_inv, E)
+    delta = np.einsum("nij,nj->ni", np.linalg.pinv(K, rcond=1e-6), required)
+    violation = np.zeros((len(st.time), 8))
+    violation[:, :4] = -np.einsum("nik,ni->nk", E, delta)  # per unit 1/C_α
+    return _rolling(ch, violation)[:, None]
 
 
+#: 1/C_α below 1e-5 rad/N (C_α above 100 kN/rad, 1 mrad of slip angle per 100 N) is rigid contact for
+#: the platform's speeds; even the ideal emulator's contact fits ~4e-6 rad/N.
 TIRE_SLIP = Hypothesis("tire_slip", "", ("inverse_cornering_stiffness",), _slip_columns,
                        magnitude=_linear_magnitude(0, "rad/N", "1/C_α per wheel"),
-                       physical=lambda t: t[0] > 0)
+                       physical=lambda t: t[0] > 0, relevant=1e-5)
 
 
 # --- heavy steering units ------------------------------------------------------------------------------
@@ -412,7 +454,8 @@ LIBRARY: tuple[Hypothesis, ...] = (
 # --- generic structure (not a named effect) -----------------------------------------------------------
 def generic(channel: str) -> Hypothesis:
     """A black-box extension of one channel — residual on its own velocity, acceleration, friction sign,
-    input delayed by 10 and 30 ms, and (kinematic) the steering excursion and drive torque — used to
+    input delayed by 10 and 30 ms, (kinematic) the steering excursion and drive torque, (rolling) integrals
+    of the speed and input — used to
     tell "unexplained structure remains" from noise when no named hypothesis is significant."""
 
     def columns(ch: ChannelData, _):
@@ -423,11 +466,17 @@ def generic(channel: str) -> Hypothesis:
             y = ch.y
             lagged = [np.concatenate([np.repeat(y[:1], n), y[:-n]]) - y for n in (5, 15)]
             return np.column_stack([v, acc, np.tanh(v / EPS_SIGN), v * np.abs(v), *lagged])
+        if ch.kind == "rolling":
+            # positions: the integrals of the speed's odd and even powers and the generalized input
+            ts = ch.context.st.cycle_time
+            u = ch.rows(ch.context.st.motor_torque.sum(axis=1))
+            return np.cumsum(np.column_stack([v, np.abs(v), v * v * v, u]), axis=0) * ts
         u = ch.rows(ch.context.st.motor_torque[:, ch.index])
         alpha = ch.rows(ch.context.st.q[:, 3 + SIDE_INDEX[ch.index]])
         return np.column_stack([alpha - alpha[0], u, np.tanh(u / BACKLASH_TORQUE_SCALE), v])
 
     names = (("c_alpha", "c_u", "c_sign_u", "c_v") if "/kinematic_" in channel
+             else ("c_v", "c_abs_v", "c_v3", "c_u") if "/rolling_" in channel
              else ("c_v", "c_a", "c_sign", "c_v2", "c_u5", "c_u15"))
     return Hypothesis("unexplained", channel, names, columns, magnitude=lambda theta, cov, nl, sheet: Magnitude(
                           float(np.linalg.norm(theta)), (0.0, 0.0), "-", "black-box coefficients"))

@@ -96,9 +96,11 @@ def whiteness(ch: ChannelData, lag: int) -> dict:
 def input_correlation(ch: ChannelData, lag: int) -> dict:
     """Largest normalised cross-correlation of the residual with the generalized input torque and with
     the generalized velocity (lags ±0.1 s), against its 99 % band 2.58/√(n/L)."""
-    if ch.kind != "torque":
+    if ch.kind == "kinematic":
         inputs = {"motor_torque": ch.rows(ch.context.st.motor_torque[:, ch.index]),
                   "velocity": ch.velocity}
+    elif ch.kind == "rolling":
+        inputs = {"motor_torque": ch.rows(ch.context.st.motor_torque.sum(axis=1)), "velocity": ch.velocity}
     else:
         inputs = {"generalized_input": ch.y, "velocity": ch.velocity}
     r = ch.residual[ch.fitted]
