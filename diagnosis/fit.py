@@ -378,8 +378,13 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows.
 
     ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
-    test is then whether the data need more of it than the reference had (θ ≠ θ₀)."""
-    best, best_base = None, base
+    test is then whether the data need more of it than the reference had (θ ≠ θ₀).
+
+    The profile is constrained: of the grid points whose linear coefficients are physically admissible
+    (``h.physical``) the best is taken; only when none is, the best of all (then reported as
+    physically impossible). A short delay fits a long grid delay at a gain below its bound about as well
+    as the right one at gain 1, and the unconstrained optimum would discard it."""
+    fits = []
     for nonlinear in h.grid:
         theta0 = None if reference is None else reference.get(nonlinear)
         ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
@@ -387,11 +392,11 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
             continue
         ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
                                                       theta0=theta0, free=False)
-        if best is None or ext.rss - ext_base.rss < best.rss - best_base.rss:
-            best, best_base = ext, ext_base
-    if best is None:
+        fits.append((ext.rss - ext_base.rss, bool(h.physical(ext.theta)), ext, ext_base))
+    if not fits:
         return None
-    base = best_base
+    admissible = [f for f in fits if f[1]] or fits
+    _, _, best, base = min(admissible, key=lambda f: f[0])
     p_value = f_test(base, best, extra_dof=0 if h.grid == (None,) else 1)
     evaluation = evaluate(hold_problem, base, best, cache)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)

@@ -24,6 +24,7 @@ def suite(tmp_path_factory):
         Case("incline+radius", {"incline": seeded_table("incline", 1, 33),
                                 "wheel_radius": {"radius": 0.096}},
              ["incline", "wheel_radius"], seed=33),
+        Case("slip", {"tire_slip": {"cornering_stiffness": 6000.0}}, ["tire_slip"], seed=34),
     ]
     results = {r.case.name: r for r in run_suite(cases, work, quick=True, workers=2)}
     return work, results
@@ -57,6 +58,18 @@ def test_single_effect_is_ranked_first_with_its_magnitude(suite):
     assert top["holdout_shrink"] >= 0.5
     for key in ("name", "magnitude", "ci", "significant", "holdout_shrink"):
         assert all(key in e for e in gap["effects"])
+
+
+def test_tyre_slip_is_named_from_the_rolling_constraints_with_its_cornering_stiffness(suite):
+    work, results = suite
+    r = results["slip"]
+    assert r.accepted == ["tire_slip"], r.verdict
+    gap = json.loads((work / "slip" / "gap" / "gap.json").read_text())
+    top = gap["effects"][0]
+    assert top["name"] == "tire_slip" and top["significant"]
+    assert 1 / top["magnitude"] == pytest.approx(6000.0, rel=0.1)          # C_α, N/rad
+    assert top["affected_channel"].startswith("rotation/rolling_")
+    assert top["holdout_shrink"] >= 0.5
 
 
 def test_two_effects_at_once_are_both_named(suite):
