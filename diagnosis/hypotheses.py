@@ -331,9 +331,11 @@ def _backlash_columns(ch: ChannelData, _):
     return _rolling(ch, violation)[:, None]
 
 
+#: 0.3 mrad (1 arcmin) at the gear output: what precision gearboxes are specified at; less is no backlash
+#: of practical consequence (standard planetary gears have 3–6 mrad).
 BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
                       magnitude=_linear_magnitude(0, "rad", "gear backlash (wheel side)"),
-                      physical=lambda t: t[0] > 0)
+                      physical=lambda t: t[0] > 0, relevant=3e-4)
 
 
 @_kinematic_only
