@@ -37,6 +37,11 @@ from .simulate import simulate_channel
 MAX_EFFECTS = 3
 #: Held-out shrinkage a channel's black-box extension must reach for "unexplained structure remains".
 GENERIC_SHRINK = 0.2
+#: Held-out RMS a black-box extension must remove from a rolling channel, per second of its step (m/s),
+#: to count as structure: 0.1 mm/s at the wheels' ~0.5 m/s is a creep of 2·10⁻⁴, inside any tyre's
+#: elastic slip (the ideal emulator's contact leaves 0.1 mm over a 6 s and 0.5 mm over a 14 s rotation;
+#: tyre slip and coupling compliance leave 1–5 mm).
+ROLLING_RELEVANT_RATE = 1e-4
 VERDICT_NONE = "no significant unmodelled effect"
 VERDICT_UNEXPLAINED = "unexplained structure remains"
 #: Share of torque-channel rows at a drive's torque limit above which the verdict says so first: the
@@ -97,17 +102,22 @@ class Diagnosis:
     final_fit: fitting.Fit | None = field(repr=False, default=None)
 
 
-def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache):
-    """Re-test the remaining hypotheses with the accepted effects in the model; return the best
-    significant one or None."""
+def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels):
+    """Re-test the remaining hypotheses with the accepted effects in the model, each beyond its level in
+    the reference run (``levels``, as in the first round); return the best significant one or None."""
     base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache)
     taken = {c.hypothesis.name for c in accepted}
+    head = sum(len(f.hypothesis.parameters) for f in accepted_fits)
     best = None
     for h in LIBRARY:
         if h.name in taken:
             continue
         joint = combine(accepted_fits, h)
-        cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache)
+        own = levels.get(h.label)
+        reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
+                                          for nl, theta0 in own.items()}
+        cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache, reference,
+                                      hold_tail=len(h.parameters))
         if cand is None:
             continue
         q = len(h.parameters)
@@ -158,6 +168,12 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered: 
                             "held out in a step without steering motion")
 
 
+def _removed_rms(cand: fitting.Candidate, channel: str) -> float:
+    """Held-out RMS the candidate removes from one channel (its unit)."""
+    c = next((c for c in cand.evaluation.channels if c.name == channel), None)
+    return 0.0 if c is None else float(np.sqrt(max(c.rms_before**2 - c.rms_after**2, 0.0)))
+
+
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
              *, reference_dir: str | Path | None = None, simulate: bool = True,
              model_source: str = "") -> Diagnosis:
@@ -185,6 +201,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     fp, hp = fitting.make_problem(chans, lag, hold)
     cache: dict = {}
     levels: dict = {}
+    ref_problem = None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
         r_signals, r_sheet, _ = load_run(reference_dir)
         ref = channels(r_signals, r_sheet, model)
@@ -202,7 +219,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         accepted.append(first)
         accepted_fits.append(first.fit)
         while len(accepted) < MAX_EFFECTS:
-            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache)
+            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels)
             if more is None:
                 break
             cand, joint_fit = more
@@ -217,8 +234,14 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     unexplained = []
     if not accepted:
         for ch in chans:
-            cand = fitting.fit_hypothesis(fp, hp, model, generic(ch.name), base, lag, sheet, cache)
-            if cand is not None and cand.significant and cand.evaluation.shrink_affected >= GENERIC_SHRINK:
+            # beyond what the reference run has in the same channel, like the named hypotheses
+            black_box = generic(ch.name)
+            own = None if ref_problem is None else fitting.reference_levels(
+                ref_problem, model, [black_box], lag, cache)[black_box.label] or None
+            cand = fitting.fit_hypothesis(fp, hp, model, black_box, base, lag, sheet, cache, own)
+            if cand is not None and cand.significant and cand.evaluation.shrink_affected >= GENERIC_SHRINK \
+                    and (ch.kind != "rolling" or _removed_rms(cand, ch.name)
+                         >= ROLLING_RELEVANT_RATE * float(np.ptp(ch.time))):
                 unexplained.append(cand)
     if accepted:
         verdict = "unmodelled effect: " + ", ".join(c.hypothesis.label for c in accepted)

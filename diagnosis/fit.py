@@ -145,14 +145,19 @@ def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict
 
 
 def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, nonlinear, lag: int,
-          cache: dict | None = None, theta0: np.ndarray | None = None, free: bool = True) -> Fit | None:
+          cache: dict | None = None, theta0: np.ndarray | None = None, free: bool = True,
+          hold_tail: int = 0) -> Fit | None:
     """Least squares of the stacked weighted rows plus the prior rows. None if the hypothesis has no
     column anywhere or its columns vanish.
 
     ``theta0``: the hypothesis' level in the reference run, taken as part of the base (θ = θ₀ + δθ);
-    ``free=False`` keeps θ = θ₀ (the base fit such a hypothesis is tested against)."""
+    ``free=False`` keeps θ = θ₀ (the base fit such a hypothesis is tested against); with ``hold_tail``
+    only the last ``hold_tail`` coefficients are kept at θ₀ and the others fitted (the base of an
+    effect added to accepted ones: they stay free, the new one at its reference level)."""
     kin = [i for i, c in enumerate(problem.channels) if c.kind != "torque"]
     q = len(h.parameters) if h is not None and free else 0
+    if hold_tail and not free:
+        q = len(h.parameters) - hold_tail
     n_base = len(P1_NAMES)
     widths = [problem.channels[i].nuisance.shape[1] for i in kin]
     starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
@@ -172,7 +177,7 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
         if q:
             cols = cached_columns(h, nonlinear, ch, cache)
             if cols is not None:
-                A[:, -q:] = cols[rows]
+                A[:, -q:] = cols[rows][:, :q]
                 any_effect = any_effect or bool(np.any(cols[rows] != 0))
         blocks_A.append(A * problem.weights[i])
         used.append(i)
@@ -201,8 +206,14 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
                for j, i in enumerate(kin)}
     theta = x[n_cols - q:] if q else np.zeros(0)
     theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
-    if q and theta0 is not None:
+    if q and theta0 is not None and free:
         theta = theta + theta0
+    if not free and q:
+        held = len(h.parameters)
+        full_cov = np.zeros((held, held))
+        full_cov[:q, :q] = theta_cov
+        return Fit(h, nonlinear, np.concatenate([theta, np.asarray(theta0)[q:]]), full_cov, x[:n_base],
+                   offsets, rss, n_eff, n_cols)
     if not free:
         return Fit(None, nonlinear, np.zeros(0), np.zeros((0, 0)), x[:n_base], offsets, rss, n_eff, n_cols,
                    theta0=theta0, shift_hypothesis=h)
@@ -294,7 +305,9 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     # the one where the effect removes the largest fraction.
     removed = {c.name: gain[c.name] * (c.rms_before**2 - c.rms_after**2) for c in out}
     top = max(removed.values())
-    affected = max((c for c in out if removed[c.name] >= 0.1 * top), key=lambda c: c.shrink)
+    # (when the effect removes nothing anywhere, every channel is a candidate)
+    pool = [c for c in out if top > 0 and removed[c.name] >= 0.1 * top] or out
+    affected = max(pool, key=lambda c: c.shrink)
     wins, before, after = per_window[affected.name]
     ids = np.unique(wins)
     sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])
@@ -374,11 +387,13 @@ class Candidate:
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
                    h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,
-                   reference: dict | None = None) -> Candidate | None:
+                   reference: dict | None = None, hold_tail: int = 0) -> Candidate | None:
     """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows.
 
     ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
-    test is then whether the data need more of it than the reference had (θ ≠ θ₀).
+    test is then whether the data need more of it than the reference had (θ ≠ θ₀). ``hold_tail``: for
+    a joint hypothesis (accepted effects + a new one) only its last ``hold_tail`` coefficients are held
+    at θ₀ in the base it is tested against.
 
     The profile is constrained: of the grid points whose linear coefficients are physically admissible
     (``h.physical``) the best is taken; only when none is, the best of all (then reported as
@@ -391,7 +406,7 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         if ext is None:
             continue
         ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
-                                                      theta0=theta0, free=False)
+                                                      theta0=theta0, free=False, hold_tail=hold_tail)
         fits.append((ext.rss - ext_base.rss, bool(h.physical(ext.theta)), ext, ext_base))
     if not fits:
         return None
