@@ -168,10 +168,9 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered: 
                             "held out in a step without steering motion")
 
 
-def _removed_rms(cand: fitting.Candidate, channel: str) -> float:
-    """Held-out RMS the candidate removes from one channel (its unit)."""
-    c = next((c for c in cand.evaluation.channels if c.name == channel), None)
-    return 0.0 if c is None else float(np.sqrt(max(c.rms_before**2 - c.rms_after**2, 0.0)))
+def _removed_rms(evaluation: fitting.Evaluation, channel: str) -> float:
+    """Held-out RMS removed from one channel (its unit), 0 if it was not evaluated."""
+    return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
 
 
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
@@ -240,7 +239,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                 ref_problem, model, [black_box], lag, cache)[black_box.label] or None
             cand = fitting.fit_hypothesis(fp, hp, model, black_box, base, lag, sheet, cache, own)
             if cand is not None and cand.significant and cand.evaluation.shrink_affected >= GENERIC_SHRINK \
-                    and (ch.kind != "rolling" or _removed_rms(cand, ch.name)
+                    and (ch.kind != "rolling" or _removed_rms(cand.evaluation, ch.name)
                          >= ROLLING_RELEVANT_RATE * float(np.ptp(ch.time))):
                 unexplained.append(cand)
     if accepted:

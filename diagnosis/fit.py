@@ -122,7 +122,6 @@ class Fit:
     n_eff: float
     n_params: int
     theta0: np.ndarray | None = None  # the reference run's level of the hypothesis, part of the base
-    shift_hypothesis: Hypothesis | None = None  # a base fit holding a hypothesis at θ₀
 
 
 def cached_columns(h: Hypothesis, nonlinear, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
@@ -145,19 +144,21 @@ def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict
 
 
 def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, nonlinear, lag: int,
-          cache: dict | None = None, theta0: np.ndarray | None = None, free: bool = True,
-          hold_tail: int = 0) -> Fit | None:
+          cache: dict | None = None, theta0: np.ndarray | None = None, held: int = 0) -> Fit | None:
     """Least squares of the stacked weighted rows plus the prior rows. None if the hypothesis has no
     column anywhere or its columns vanish.
 
-    ``theta0``: the hypothesis' level in the reference run, taken as part of the base (θ = θ₀ + δθ);
-    ``free=False`` keeps θ = θ₀ (the base fit such a hypothesis is tested against); with ``hold_tail``
-    only the last ``hold_tail`` coefficients are kept at θ₀ and the others fitted (the base of an
-    effect added to accepted ones: they stay free, the new one at its reference level)."""
+    ``theta0``: the hypothesis' level in the reference run, taken as part of the base (θ = θ₀ + δθ).
+    ``held``: the last ``held`` coefficients are kept at θ₀ instead (all of them: the base fit such a
+    hypothesis is tested against; the new one's only: the base of an effect added to accepted ones,
+    which stay free).
+
+    Raises:
+        ValueError: ``held`` without ``theta0``."""
+    if held and theta0 is None:
+        raise ValueError("coefficients held at θ₀ need θ₀")
     kin = [i for i, c in enumerate(problem.channels) if c.kind != "torque"]
-    q = len(h.parameters) if h is not None and free else 0
-    if hold_tail and not free:
-        q = len(h.parameters) - hold_tail
+    q = len(h.parameters) - held if h is not None else 0
     n_base = len(P1_NAMES)
     widths = [problem.channels[i].nuisance.shape[1] for i in kin]
     starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
@@ -206,17 +207,13 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
                for j, i in enumerate(kin)}
     theta = x[n_cols - q:] if q else np.zeros(0)
     theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
-    if q and theta0 is not None and free:
-        theta = theta + theta0
-    if not free and q:
-        held = len(h.parameters)
-        full_cov = np.zeros((held, held))
+    if theta0 is not None:
+        theta = theta + np.asarray(theta0)[:q]
+    if held:
+        full_cov = np.zeros((q + held, q + held))
         full_cov[:q, :q] = theta_cov
         return Fit(h, nonlinear, np.concatenate([theta, np.asarray(theta0)[q:]]), full_cov, x[:n_base],
                    offsets, rss, n_eff, n_cols)
-    if not free:
-        return Fit(None, nonlinear, np.zeros(0), np.zeros((0, 0)), x[:n_base], offsets, rss, n_eff, n_cols,
-                   theta0=theta0, shift_hypothesis=h)
     return Fit(h, nonlinear, theta, theta_cov, x[:n_base], offsets, rss, n_eff, n_cols, theta0=theta0)
 
 
@@ -228,10 +225,6 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     r = ch.residual[rows].copy()
     if ch.kind == "torque":
         r -= ch.base[rows] @ fit.delta_p
-    if fit.shift_hypothesis is not None:
-        shift = _shift(fit.shift_hypothesis, fit.nonlinear, fit.theta0, ch, cache)
-        if shift is not None:
-            r -= shift[rows]
     if fit.hypothesis is not None and len(fit.theta):
         cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
         if cols is not None:
@@ -254,6 +247,11 @@ class ChannelShrink:
     @property
     def shrink(self) -> float:
         return 1.0 - self.rms_after / self.rms_before if self.rms_before > 0 else 0.0
+
+    @property
+    def removed_rms(self) -> float:
+        """RMS removed, in the channel's unit: √(before² − after²), 0 if nothing."""
+        return math.sqrt(max(self.rms_before**2 - self.rms_after**2, 0.0))
 
 
 @dataclass
@@ -387,13 +385,13 @@ class Candidate:
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
                    h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,
-                   reference: dict | None = None, hold_tail: int = 0) -> Candidate | None:
+                   reference: dict | None = None, hold_tail: int | None = None) -> Candidate | None:
     """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows.
 
     ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
     test is then whether the data need more of it than the reference had (θ ≠ θ₀). ``hold_tail``: for
     a joint hypothesis (accepted effects + a new one) only its last ``hold_tail`` coefficients are held
-    at θ₀ in the base it is tested against.
+    at θ₀ in the base it is tested against (default: all).
 
     The profile is constrained: of the grid points whose linear coefficients are physically admissible
     (``h.physical``) the best is taken; only when none is, the best of all (then reported as
@@ -405,8 +403,9 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
         if ext is None:
             continue
+        held = len(h.parameters) if hold_tail is None else hold_tail
         ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
-                                                      theta0=theta0, free=False, hold_tail=hold_tail)
+                                                      theta0=theta0, held=held)
         fits.append((ext.rss - ext_base.rss, bool(h.physical(ext.theta)), ext, ext_base))
     if not fits:
         return None
