@@ -277,10 +277,9 @@ def _rolling_channels(ctx: StepContext) -> list[ChannelData]:
     st, keep, rc = ctx.st, ctx.keep, ctx.rolling
     measured = np.einsum("nij,nj->ni", rc.A[:, :, 3:], st.qd[:, 3:])  # chassis twist left out
     y = rc.integrate(measured)[keep]
-    coordinate = MODE_COORDINATES[ctx.k][0]
-    j = MODE_COORDINATES[ctx.k].index(coordinate)
-    velocity = np.einsum("ni,ni->n", ctx.H[:, :, j], st.qd)[keep]
-    acceleration = np.einsum("ni,ni->n", ctx.H[:, :, j], st.qdd)[keep]
+    # the mode's one generalized coordinate (y_ch or γ_ch): ṡ and, since the selection is linear, s̈
+    velocity = kinematics.sdot_from_qdot(ctx.k, st.q[:, 3:5], st.qd, ctx.sheet.geometry)[keep, 0]
+    acceleration = kinematics.sdot_from_qdot(ctx.k, st.q[:, 3:5], st.qdd, ctx.sheet.geometry)[keep, 0]
     free = ~ctx.traction_limited[keep]
     return [ChannelData(f"{ctx.step}/rolling_{m + 1}", "rolling", "m", m, y[:, m], np.zeros((len(y), 0)),
                         np.zeros(len(y)), velocity, acceleration, free, ctx, _segments(free))
