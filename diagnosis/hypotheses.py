@@ -23,7 +23,8 @@ actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled         
 torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
 wheel_radius               (kinematic) predicted rolling angle              r_nominal/r − 1 [-]
 backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
-steering_compliance        (kinematic, rear wheels) coupling torque         1/stiffness [rad/(N m)]
+steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
+                           drag μN·|T|/k of the toed rear wheels
 tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
                            side forces need slip angles F/C_α
 heavy_steering_units       exact point masses at the wheel centres          m_w [kg]
@@ -338,25 +339,67 @@ BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
                       physical=lambda t: t[0] > 0, relevant=3e-4)
 
 
-@_kinematic_only
-def _compliance_columns(ch: ChannelData, _):
+#: Tyre/floor friction coefficient the scrub of a toed wheel is taken at (dry rubber on concrete, the
+#: low end of 0.8–1.0): the vehicle's data sheet has none.
+SCRUB_FRICTION = 0.8
+
+
+def _linkage_torque(H1: np.ndarray, wheel_torque: np.ndarray) -> np.ndarray:
+    """(N, 2) torque each side's front/rear linkage carries, left then right, N m.
+
+    A wheel torque w_i acts on its steering joint as (H₁)_{β_i}·w_i (virtual work, chassis at rest: a
+    tyre force F at the offset a gives a·F). The linkage holds the two joints mirrored, so it carries
+    half their difference — which makes them turn alike."""
+    return np.column_stack([0.5 * (H1[:, 5 + f, s] * wheel_torque[:, f] - H1[:, 5 + r, s] * wheel_torque[:, r])
+                            for s, (f, r) in enumerate(((0, 1), (2, 3)))])
+
+
+def _compliance_kinematic(ch: ChannelData) -> np.ndarray:
     i = ch.index
     if FRONT_SIGN[i] > 0:
         return ch.rows(np.zeros(len(ch.context.st.time)))[:, None]
     ctx, side = ch.context, SIDE_INDEX[ch.index]
-    front = i - 1
-    H1 = ctx.H[:, 5:9, side]
-    i_G = ctx.sheet.drive.i_G
-    u = ctx.st.motor_torque
-    # Torque the coupling carries to the rear unit ≈ half the side's difference of the two drives'
-    # steering torques; the rear joint deflects by it / stiffness and its wheel rolls with it.
-    coupling = 0.5 * i_G * (H1[:, front] * u[:, front] - H1[:, i] * u[:, i])
-    return ch.rows(H1[:, i] * coupling * FRONT_SIGN[i])[:, None]
+    # the rear joint deflects by the linkage torque / stiffness and its wheel rolls with it
+    coupling = _linkage_torque(ctx.H, ctx.sheet.drive.i_G * ctx.st.motor_torque)[:, side]
+    return ch.rows(ctx.H[:, 5 + i, side] * coupling * FRONT_SIGN[i])[:, None]
 
 
+def _compliance_scrub(ch: ChannelData) -> np.ndarray:
+    """Drag of the rear wheels toed by the linkage's deflection, as generalized force per unit 1/k.
+
+    The linkage deflects by δ = T/k under the torque T it carries (:func:`_linkage_torque` of the
+    tyres' longitudinal forces, at the mode's angles), which toes the rear wheel by δ away from the
+    mirror of the measured front angle. A toed wheel slides sideways at |v|·δ under the lateral
+    friction μN, and the component μN|δ| of that force along its travel is a drag."""
+    ctx = ch.context
+    st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
+    alpha = st.q[:, 3:5]
+    if ctx.k in (3, 4):
+        alpha = np.broadcast_to(kinematics.mode_alpha(ctx.k, g), alpha.shape)
+    beta_d = st.qd[:, 5:9]
+    tyre = ctx.sheet.drive.i_G * st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d
+    deflection = np.abs(_linkage_torque(kinematics.H(1, alpha, g), tyre))   # × 1/k, rad
+    load = SCRUB_FRICTION * p[6] * GRAVITY / 4
+    Q = np.zeros((len(st.time), 9))
+    Q[:, [6, 8]] = load * g.r * deflection * np.tanh(st.qd_coulomb[:, [6, 8]] / EPS_SIGN)
+    return _project(ch, Q, smooth=True)[:, None]
+
+
+def _compliance_columns(ch: ChannelData, _):
+    if ch.kind == "kinematic":
+        return _compliance_kinematic(ch)
+    if ch.kind == "torque":
+        return _compliance_scrub(ch)
+    return None
+
+
+#: 1e-4 rad/(N m) (a linkage of 10 kN m/rad): the campaign's typical tyre forces (≈ 250 N, a·F ≈ 20 N m
+#: on the linkage) then toe a rear wheel by < 2 mrad, within an ordinary wheel-alignment tolerance (±0.1°).
 STEERING_COMPLIANCE = Hypothesis(
     "steering_compliance", "", ("compliance",), _compliance_columns,
-    magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k"))
+    magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k "
+                                f"(scrub taken at μ = {SCRUB_FRICTION})"),
+    physical=lambda t: t[0] > 0, relevant=1e-4)
 
 
 # --- tyre slip ---------------------------------------------------------------------------------------

@@ -1,0 +1,61 @@
+"""The steering-compliance hypothesis in the torque channels: the scrub drag of rear wheels toed by a
+compliant front/rear linkage, checked against the hand derivation on steady straight driving."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from diagnosis.channels import ChannelData, StepContext
+from diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE
+from ident import filtering, kinematics
+from ident.datasheet import DataSheet
+
+SHEET = DataSheet.load()
+G = SHEET.geometry
+I_G = SHEET.drive.i_G
+TS = SHEET.drive.cycle_time
+#: model parameters, order (18): only m_ch (6), d_vw (8) and d_cw (9) enter the column
+P = np.array([0.3, 4.0, 12.0, 0.3, 4.0, 12.0, 840.0, 286.0, 0.74, 3.96, 0.12])
+
+
+def _straight_channel(v: float, motor_torque: np.ndarray, n: int = 1500) -> ChannelData:
+    """The torque channel of a mode-3 step at constant speed v [m/s] with the given (4,) motor torques."""
+    alpha = np.broadcast_to(kinematics.mode_alpha(3, G), (n, 2))
+    H = kinematics.H(3, alpha, G)
+    qd = H[:, :, 0] * v
+    st = SimpleNamespace(k=3, time=np.arange(n) * TS, q=np.zeros((n, 9)), qd=qd, qdd=np.zeros((n, 9)),
+                         qd_coulomb=qd.copy(), motor_torque=np.tile(motor_torque, (n, 1)),
+                         cycle_time=TS, omega_g=filtering.OMEGA_G)
+    keep = np.ones(n, dtype=bool)
+    ctx = StepContext(st, SHEET, P, np.zeros((n, 3)), H, np.zeros((n, 2)), keep,
+                      np.zeros(n, dtype=bool))
+    zeros = np.zeros(n)
+    return ChannelData("straight/x_ch", "torque", "N", 0, zeros, np.zeros((n, 10)), zeros, qd[:, 0], zeros,
+                       keep, ctx)
+
+
+@pytest.mark.parametrize("v, motor_torque", [(0.5, (-0.8, 0.9, 0.7, -0.6)),
+                                             (-0.4, (1.2, -1.0, -1.3, 1.1)),
+                                             (0.3, (0.6, 0.6, -0.5, -0.5))])
+def test_scrub_column_is_the_drag_of_the_rear_wheels_toed_by_the_linkage(v, motor_torque):
+    ch = _straight_channel(v, np.array(motor_torque))
+    column = STEERING_COMPLIANCE.columns(ch, None)[:, 0]
+    beta_d = ch.context.st.qd[0, 5:9]
+    # each wheel's longitudinal tyre force along its own rolling direction (the model's wheel friction
+    # taken off), N; a tyre force F acts on its steering joint with the lever a
+    f_long = (I_G * np.array(motor_torque) - P[9] * np.tanh(beta_d / 0.01) - P[8] * beta_d) / G.r
+    linkage = G.a * np.abs([f_long[0] + f_long[1], f_long[2] + f_long[3]]) / 2     # N m, left, right
+    # per unit 1/k the rear wheel of each side is toed by linkage/k, slides sideways under μN and drags
+    # μN·linkage/k against its travel; in the straight step every wheel rolls at the mode's speed
+    expected = SCRUB_FRICTION * P[6] * GRAVITY / 4 * linkage.sum() * np.sign(v)
+    middle = slice(300, -300)  # away from the zero-phase filter's edges
+    assert np.allclose(column[middle], expected, rtol=1e-6)
+    # resisting: the measured input needs more than the model, whichever way the vehicle drives
+    assert np.all(np.sign(column[middle]) == np.sign(v))
+
+
+def test_a_stiffer_linkage_than_alignment_tolerance_is_not_relevant():
+    assert not STEERING_COMPLIANCE.physical(np.array([-1e-4]))
+    from diagnosis.hypotheses import plausible
+    assert not plausible(STEERING_COMPLIANCE, np.array([5e-5]))   # 20 kN m/rad
+    assert plausible(STEERING_COMPLIANCE, np.array([5e-4]))       # 2 kN m/rad
