@@ -36,7 +36,7 @@ from ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
 from ident.datasheet import DataSheet
 from ident.estimation import IdentificationResult
 from ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
-                            step_blocks, StepSignals)
+                            model_alpha, step_blocks, StepSignals)
 from ident.recording import Signals
 from ident.symbolic import WHEELS
 
@@ -193,10 +193,8 @@ def _alpha_dot_from_encoders(st: StepSignals, sheet: DataSheet) -> np.ndarray:
 def step_context(sig: Signals, sheet: DataSheet, p: np.ndarray, pose: np.ndarray) -> StepContext:
     """Filtered signals, H_k and pose of one step."""
     st = generalized_signals(sig, sheet)
-    alpha = st.q[:, 3:5]
+    alpha = model_alpha(st, sheet.geometry)
     alpha_v = kinematics.alpha_v_from_alpha(alpha, sheet.geometry) if st.k == 2 else None
-    if st.k in (3, 4):
-        alpha = np.broadcast_to(kinematics.mode_alpha(st.k, sheet.geometry), alpha.shape)
     H = kinematics.H(st.k, alpha, sheet.geometry, alpha_v=alpha_v)
     keep = np.zeros(len(st.time), dtype=bool)
     keep[EDGE_ROWS:len(keep) - EDGE_ROWS] = True

@@ -39,6 +39,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ident import filtering, kinematics
+from ident.identify import model_alpha
 from ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
 
 from .channels import ChannelData
@@ -127,6 +128,13 @@ def _rolling_only(fn):
 def _rolling(ch: ChannelData, violation: np.ndarray) -> np.ndarray:
     """(N, 8) constraint-violation rates (m/s) of the step → the rolling channel's rows (n,)."""
     return ch.rows(ch.context.rolling.integrate(violation)[:, ch.index])
+
+
+def _tyre_torque(ctx) -> np.ndarray:
+    """(N, 4) wheel-side torque the drives pass on to the tyres, N m: i_G·u less the model's wheel
+    friction d_cw·tanh(β̇/ε) + d_vw·β̇."""
+    p, beta_d = ctx.p, ctx.st.qd[:, 5:9]
+    return ctx.sheet.drive.i_G * ctx.st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d
 
 
 def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
@@ -373,12 +381,8 @@ def _compliance_scrub(ch: ChannelData) -> np.ndarray:
     friction μN, and the component μN|δ| of that force along its travel is a drag."""
     ctx = ch.context
     st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
-    alpha = st.q[:, 3:5]
-    if ctx.k in (3, 4):
-        alpha = np.broadcast_to(kinematics.mode_alpha(ctx.k, g), alpha.shape)
-    beta_d = st.qd[:, 5:9]
-    tyre = ctx.sheet.drive.i_G * st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d
-    deflection = np.abs(_linkage_torque(kinematics.H(1, alpha, g), tyre))   # × 1/k, rad
+    H1 = kinematics.H(1, model_alpha(st, g), g)
+    deflection = np.abs(_linkage_torque(H1, _tyre_torque(ctx)))   # × 1/k, rad
     load = SCRUB_FRICTION * p[6] * GRAVITY / 4
     Q = np.zeros((len(st.time), 9))
     Q[:, [6, 8]] = load * g.r * deflection * np.tanh(st.qd_coulomb[:, [6, 8]] / EPS_SIGN)
@@ -414,9 +418,9 @@ def _slip_columns(ch: ChannelData, _):
     st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
     A = ctx.rolling.A
     beta_d = st.qd[:, 5:9]
-    # Longitudinal tyre forces from the drives (wheel side, less the model's wheel friction) and their
-    # generalized chassis force; what the chassis' inertia needs beyond it the side forces must supply.
-    f_long = (ctx.sheet.drive.i_G * st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d) / g.r
+    # Longitudinal tyre forces from the drives and their generalized chassis force; what the chassis'
+    # inertia needs beyond it the side forces must supply.
+    f_long = _tyre_torque(ctx) / g.r
     drive = np.einsum("nij,ni->nj", A[:, 4:8, :3], f_long)
     v, acc = st.qd[:, :3], st.qdd[:, :3]
     inertia = np.column_stack([p[6] * (acc[:, 0] - v[:, 2] * v[:, 1]), p[6] * (acc[:, 1] + v[:, 2] * v[:, 0]),
@@ -450,9 +454,8 @@ def _heavy_columns(ch: ChannelData, _):
     n = len(st.time)
     v, acc = st.qd[:, :3], st.qdd[:, :3]
     w, wd = v[:, 2], acc[:, 2]
-    alpha, alpha_d, alpha_dd = st.q[:, 3:5], st.qd[:, 3:5], st.qdd[:, 3:5]
+    alpha, alpha_d, alpha_dd = model_alpha(st, g), st.qd[:, 3:5], st.qdd[:, 3:5]
     if ctx.k in (3, 4):
-        alpha = np.broadcast_to(kinematics.mode_alpha(ctx.k, g), alpha.shape)
         alpha_d = alpha_dd = np.zeros_like(alpha)
     Q = np.zeros((n, 9))
     lumped = np.zeros((n, 9))

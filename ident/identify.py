@@ -70,6 +70,14 @@ class StepSignals:
     omega_g: float
 
 
+def model_alpha(st: StepSignals, geometry) -> np.ndarray:
+    """(N, 2) steering angles the model of the step is evaluated at, rad: the measured ones in modes 1
+    and 2, the mode's nominal angles in modes 3 and 4 (fixed by the mode; the sensor adds only noise)."""
+    if st.k in (3, 4):
+        return np.broadcast_to(kinematics.mode_alpha(st.k, geometry), st.q[:, 3:5].shape)
+    return st.q[:, 3:5]
+
+
 def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filtering.OMEGA_G) -> StepSignals:
     """q, q̇, q̈ and u of one step from its recorded signals, all zero-phase filtered at ω_g."""
     g, d = sheet.geometry, sheet.drive
@@ -117,10 +125,8 @@ def step_blocks(st: StepSignals, sheet: DataSheet, coordinates: tuple[str, ...] 
             ``("x_ch",)`` for straight motion with α_v ≡ 0.
     """
     g, d = sheet.geometry, sheet.drive
-    alpha = st.q[:, 3:5]
+    alpha = model_alpha(st, g)
     alpha_v = kinematics.alpha_v_from_alpha(alpha, g) if st.k == 2 else None
-    if st.k in (3, 4):
-        alpha = np.broadcast_to(kinematics.mode_alpha(st.k, g), alpha.shape)
     q = st.q.copy()
     q[:, 3:5] = alpha
     theta = dynamics.reduced_regressor(st.k, q, st.qd, st.qdd, g, eps, alpha_v=alpha_v)
