@@ -31,7 +31,7 @@ from ident.identify import correlation_lag, load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import GRAVITY, LIBRARY, Hypothesis, generic, plausible
+from .hypotheses import GRAVITY, LIBRARY, STRIBECK_WHEELS, Hypothesis, generic, plausible
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -125,7 +125,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = cand.physical  # the joint hypothesis checks the added effect's part
         significant = cand.p_value < fitting.ALPHA_MORE and physical and \
-            cand.evaluation.shrink_affected >= fitting.MIN_SHRINK_MORE and \
+            cand.evaluation.confirms(fitting.MIN_SHRINK_MORE) and \
             cand.evaluation.shrink_affected_ci[0] > 0
         if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
             sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
@@ -137,35 +137,55 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     return best
 
 
-#: Held-out shrinkage the wheel joints' Stribeck variant must reach in some step without steering
-#: motion (modes 2–4) to be preferred over the steering joints' variant.
-WHEEL_FRICTION_EVIDENCE = 0.03
+#: One-sided z (5 %) the wheel joints' Stribeck level must reach in the steps without steering motion
+#: (modes 2–4), beyond the reference run's level there, to be preferred over the steering joints' variant.
+WHEEL_FRICTION_Z = 1.645
 
 
-def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered: set[str]) -> None:
+def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z) -> None:
     """Decide between the two Stribeck variants where they differ.
 
     In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
     joints and of the steering joints shape the steering steps alike, and the steering variant usually
     fits them a little better. Only steps in which the wheels turn without steering (modes 2–4) tell
-    them apart: there the steering joints' variant has nothing to explain. When the wheel variant
-    removes at least ``WHEEL_FRICTION_EVIDENCE`` of the held-out residual of such a step and the
-    steering variant does not, the wheel variant is the one reported significant."""
+    them apart: there the steering joints' variant has no column. ``unsteered_z(v_s)`` is the z of the
+    wheel variant's level fitted on those steps alone beyond the reference run's level there
+    (:func:`diagnosis.fit.level_z`). When the steering variant is significant and that z reaches
+    ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
+    friction, the unsteered steps place it in the wheel joints."""
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
     if wheels is None or steering is None or not steering.significant:
         return
+    z = unsteered_z(wheels.fit.nonlinear)
+    if z is None or z < WHEEL_FRICTION_Z:
+        return
+    steering.significant = False
+    steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
+                          f"(z = {z:.1f}); this one has no column there")
+    wheels.significant = wheels.physical and wheels.evaluation.confirms(fitting.MIN_SHRINK)
+    wheels.notes.append(f"preferred over the steering joints: its level in the steps without steering "
+                        f"motion exceeds the reference run's by z = {z:.1f}; significance from the "
+                        f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
 
-    def evidence(c):
-        return max((s.shrink for s in c.evaluation.channels if s.name in unsteered), default=0.0)
 
-    if evidence(wheels) >= WHEEL_FRICTION_EVIDENCE > evidence(steering):
-        steering.significant = False
-        steering.notes.append("the wheel joints' variant also explains the steps without steering "
-                              "motion; this one does not")
-        wheels.significant = wheels.p_value < fitting.ALPHA and wheels.physical
-        wheels.notes.append(f"preferred over the steering joints: removes {100 * evidence(wheels):.0f} % "
-                            "held out in a step without steering motion")
+def _unsteered_wheel_z(fp: fitting.Problem, ref_problem: fitting.Problem | None, model, lag: int,
+                       cache: dict):
+    """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
+    reference run's level in the same steps (0 without a reference run)."""
+    def unsteered(ch):
+        return ch.context.k != 1
+
+    def z(v_s):
+        sub = fitting.restrict(fp, unsteered)
+        theta0 = None
+        if ref_problem is not None:
+            ref = fitting.restrict(ref_problem, unsteered)
+            theta0 = fitting.reference_levels(ref, model, [STRIBECK_WHEELS], lag, cache)[
+                STRIBECK_WHEELS.label].get(v_s)
+        return fitting.level_z(sub, model, STRIBECK_WHEELS, v_s, lag, cache, theta0)
+
+    return z
 
 
 def _removed_rms(evaluation: fitting.Evaluation, channel: str) -> float:
@@ -210,7 +230,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
                               for h in LIBRARY) if c is not None]
-    _tell_friction_joints_apart(candidates, {ch.name for ch in chans if ch.context.k != 1})
+    _tell_friction_joints_apart(candidates, _unsteered_wheel_z(fp, ref_problem, model, lag, cache))
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
     first = next((c for c in candidates if c.significant), None)

@@ -15,7 +15,8 @@ Significance is an F test of the weighted RSS reduction with n/L effective rows 
 parameters count as one more degree of freedom); magnitudes' 95 % intervals come from the covariance
 of θ_e. Held-out data are never used for fitting: the rows of alternate time windows (or a second run),
 on which the shrinkage 1 − RMS(after)/RMS(before) is measured per channel, with a window-bootstrap
-interval.
+interval. They confirm an effect when it shrinks its affected channel by at least MIN_SHRINK and the
+weighted held-out residual over all channels does not grow (``Evaluation.confirms``).
 """
 from __future__ import annotations
 
@@ -270,6 +271,12 @@ class Evaluation:
         """Weighted held-out residual removed (RSS units of the noise; the ranking score)."""
         return self.weighted_rss_before - self.weighted_rss_after
 
+    def confirms(self, min_shrink: float) -> bool:
+        """Whether the held-out data confirm the effect: it removes at least ``min_shrink`` of its
+        affected channel's residual and adds none overall (weighted over every channel). An effect that
+        shrinks one channel by making others worse fits the fitted windows' noise, not the vehicle."""
+        return self.shrink_affected >= min_shrink and self.removed > 0
+
 
 def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
              rng: np.random.Generator | None = None) -> Evaluation:
@@ -422,13 +429,41 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")
     # The shrinkage's window-bootstrap interval is reported, not required: with the few held-out
     # windows of a short step (2–3 in a quick campaign) it is too unstable to gate on.
-    cand.significant = bool(p_value < ALPHA and physical and evaluation.shrink_affected >= MIN_SHRINK)
+    cand.significant = bool(p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK))
     if not physical:
         cand.notes.append("fitted sign or size is physically impossible for this effect")
+    if evaluation.removed <= 0 < evaluation.shrink_affected:
+        cand.notes.append(f"adds held-out residual overall ({-evaluation.removed:.3g} weighted) while it shrinks "
+                          f"{evaluation.affected} by {100 * evaluation.shrink_affected:.0f} %: not confirmed")
     if not ident_check["separable"]:
         cand.notes.append("columns nearly collinear with " + ", ".join(ident_check["correlated_with"])
                           + ": separable only through the base model's uncertainty")
     return cand
+
+
+def restrict(problem: Problem, keep) -> Problem:
+    """The same problem on the channels for which ``keep(channel)`` is true."""
+    idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
+    return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
+                   [problem.holdout_rows[i] for i in idx], problem.weights[idx],
+                   [problem.window_id[i] for i in idx])
+
+
+def level_z(problem: Problem, model: IdentificationResult, h: Hypothesis, nonlinear, lag: int,
+            cache: dict | None = None, theta0: np.ndarray | None = None) -> float | None:
+    """One-sided z of a one-coefficient hypothesis' level beyond ``theta0`` (default 0):
+    (θ − θ₀)/σ_θ fitted on ``problem``'s fit rows with the base parameters free within their prior.
+    None if the hypothesis has no column there.
+
+    Raises:
+        ValueError: the hypothesis has more than one coefficient."""
+    if len(h.parameters) != 1:
+        raise ValueError(f"{h.label}: level_z needs a one-coefficient hypothesis")
+    fit = solve(problem, model, h, nonlinear, lag, cache, theta0=theta0)
+    if fit is None:
+        return None
+    t0 = 0.0 if theta0 is None else float(np.asarray(theta0)[0])
+    return float((fit.theta[0] - t0) / math.sqrt(max(fit.theta_cov[0, 0], 1e-300)))
 
 
 def reference_levels(problem: Problem, model: IdentificationResult, hypotheses, lag: int,

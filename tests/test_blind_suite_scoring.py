@@ -61,23 +61,48 @@ def test_each_stretch_between_limited_rows_gets_its_own_constant(free, expected)
     assert _segments(np.array(free, dtype=bool)).tolist() == expected
 
 
-def _stribeck(variant, significant, shrinks, p_value=1e-3):
+def _stribeck(variant, significant, p_value=1e-3, shrink=0.3, v_s=0.02, removed=50.0):
     from types import SimpleNamespace as NS
+
+    from diagnosis.fit import Evaluation
     return NS(hypothesis=NS(name="stribeck", variant=variant), significant=significant, p_value=p_value,
-              physical=True, notes=[],
-              evaluation=NS(channels=[NS(name=n, shrink=s) for n, s in shrinks.items()]))
+              physical=True, notes=[], fit=NS(nonlinear=v_s),
+              evaluation=Evaluation([], 100.0, 100.0 - removed, "steer_left/alpha_l", shrink, (0.0, 0.5)))
 
 
 def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
-    from diagnosis.diagnose import _tell_friction_joints_apart
-    unsteered = {"straight/x_ch", "rotation/gamma_ch"}
-    # wheel-joint friction: both variants fit the steering steps, only the wheels' the rotation
-    wheels = _stribeck("joints=wheels", False, {"steer_left/alpha_l": 0.3, "rotation/gamma_ch": 0.13})
-    steering = _stribeck("joints=steering", True, {"steer_left/alpha_l": 0.5, "rotation/gamma_ch": -0.0})
-    _tell_friction_joints_apart([steering, wheels], unsteered)
-    assert wheels.significant and not steering.significant
-    # steering-joint friction: the wheel variant makes the unsteered steps no better
-    wheels = _stribeck("joints=wheels", True, {"steer_left/alpha_l": 0.3, "straight/x_ch": -0.15})
-    steering = _stribeck("joints=steering", True, {"steer_left/alpha_l": 0.5, "straight/x_ch": 0.0})
-    _tell_friction_joints_apart([steering, wheels], unsteered)
+    from diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    asked = []
+
+    def z_of(z):
+        def unsteered_z(v_s):
+            asked.append(v_s)
+            return z
+        return unsteered_z
+
+    # wheel-joint friction: the steering steps make the steering variant significant, the wheel
+    # variant's level in the unsteered steps stands out of the reference's -> wheels, at its own v_s
+    wheels, steering = _stribeck("joints=wheels", False, p_value=0.02, v_s=0.05), _stribeck("joints=steering", True)
+    _tell_friction_joints_apart([steering, wheels], z_of(WHEEL_FRICTION_Z + 0.4))
+    assert wheels.significant and not steering.significant and asked == [0.05]
+    assert "z = 2.0" in wheels.notes[0]
+    # steering-joint friction: the unsteered steps hold no more of it than the reference run
+    wheels, steering = _stribeck("joints=wheels", True), _stribeck("joints=steering", True)
+    _tell_friction_joints_apart([steering, wheels], z_of(WHEEL_FRICTION_Z - 0.1))
+    assert steering.significant and wheels.significant and not steering.notes
+    # no column in the unsteered steps (e.g. a run without them): nothing to decide on
+    _tell_friction_joints_apart([steering, wheels], z_of(None))
     assert steering.significant
+    # the wheel variant must still remove held-out residual itself
+    wheels, steering = _stribeck("joints=wheels", False, shrink=0.05), _stribeck("joints=steering", True)
+    _tell_friction_joints_apart([steering, wheels], z_of(3.0))
+    assert not wheels.significant and not steering.significant
+    # ... and must not add held-out residual elsewhere
+    wheels, steering = _stribeck("joints=wheels", False, removed=-20.0), _stribeck("joints=steering", True)
+    _tell_friction_joints_apart([steering, wheels], z_of(3.0))
+    assert not wheels.significant
+    # nothing is asked when no Stribeck variant is significant
+    asked.clear()
+    _tell_friction_joints_apart([_stribeck("joints=steering", False), _stribeck("joints=wheels", False)],
+                                z_of(3.0))
+    assert asked == []

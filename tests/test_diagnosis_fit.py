@@ -1,0 +1,76 @@
+"""diagnosis.fit on synthetic channels: the z of a hypothesis' level beyond a reference level is
+calibrated (one-sided 5 % under the null), finds a planted level and sees only the channels it is
+restricted to; held-out confirmation of an effect needs the overall residual not to grow."""
+from types import SimpleNamespace as NS
+
+import numpy as np
+import pytest
+
+from diagnosis import fit as fitting
+from diagnosis.hypotheses import Hypothesis
+
+N_ROWS = 400
+
+
+def _channel(name, rng, planted=0.0, k=3):
+    base = rng.normal(size=(N_ROWS, 10))
+    phi = np.tanh(rng.normal(size=N_ROWS))   # an effect column partly like the base columns
+    phi = phi + 0.3 * base[:, 0]
+    residual = planted * phi + rng.normal(size=N_ROWS)   # noise σ = 1 per row
+    return NS(name=name, kind="torque", base=base, residual=residual, nuisance=np.zeros((N_ROWS, 0)),
+              fitted=np.ones(N_ROWS, bool), time=np.arange(N_ROWS) * 0.004, phi=phi,
+              context=NS(k=k))
+
+
+def _problem(channels):
+    rows = [np.ones(N_ROWS, bool) for _ in channels]
+    return fitting.Problem(channels, rows, [np.zeros(N_ROWS, bool) for _ in channels],
+                           np.ones(len(channels)), [np.zeros(N_ROWS, int) for _ in channels])
+
+
+LEVEL = Hypothesis("level", "", ("c",), lambda ch, _: ch.phi[:, None])
+MODEL = NS(std_vector=np.full(10, 1e-6), p1=np.ones(10))  # base parameters held by a tight prior
+
+
+def test_level_z_is_calibrated_under_the_null():
+    rng = np.random.default_rng(5)
+    z = [fitting.level_z(_problem([_channel("a", rng, planted=0.7)]), MODEL, LEVEL, None, 1,
+                         theta0=np.array([0.7])) for _ in range(300)]
+    assert np.mean(z) == pytest.approx(0.0, abs=0.15)
+    assert np.std(z) == pytest.approx(1.0, abs=0.15)
+    assert 0.02 <= np.mean(np.array(z) > 1.645) <= 0.09
+
+
+def test_level_z_finds_a_planted_level_beyond_the_reference():
+    rng = np.random.default_rng(6)
+    ch = _channel("a", rng, planted=0.5)
+    sigma = 1 / np.linalg.norm(ch.phi - ch.base @ np.linalg.lstsq(ch.base, ch.phi, rcond=None)[0])
+    z = fitting.level_z(_problem([ch]), MODEL, LEVEL, None, 1, theta0=np.array([0.2]))
+    assert z == pytest.approx(0.3 / sigma, abs=2.0)
+    assert z > 3
+
+
+def test_restrict_keeps_only_the_chosen_channels():
+    rng = np.random.default_rng(7)
+    steered, unsteered = _channel("steer/alpha_l", rng, 2.0, k=1), _channel("straight/x_ch", rng, 0.0, k=3)
+    whole = _problem([steered, unsteered])
+    sub = fitting.restrict(whole, lambda ch: ch.context.k != 1)
+    assert [c.name for c in sub.channels] == ["straight/x_ch"] and len(sub.fit_rows) == 1
+    assert fitting.level_z(whole, MODEL, LEVEL, None, 1) > 10
+    assert abs(fitting.level_z(sub, MODEL, LEVEL, None, 1)) < 4
+
+
+def test_level_z_needs_one_coefficient():
+    two = Hypothesis("two", "", ("a", "b"), lambda ch, _: np.column_stack([ch.phi, ch.phi ** 2]))
+    with pytest.raises(ValueError, match="one-coefficient"):
+        fitting.level_z(_problem([_channel("a", np.random.default_rng(1))]), MODEL, two, None, 1)
+
+
+def test_held_out_confirmation_needs_the_overall_residual_not_to_grow():
+    def evaluation(before, after, shrink):
+        return fitting.Evaluation([], before, after, "steer_right/alpha_r", shrink, (0.0, 0.3))
+
+    assert evaluation(100.0, 60.0, 0.3).confirms(0.1)
+    # one steering side 14 % better, the other worse: more held-out residual overall
+    assert not evaluation(100.0, 122.3, 0.14).confirms(0.1)
+    assert not evaluation(100.0, 99.0, 0.05).confirms(0.1)
