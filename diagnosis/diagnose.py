@@ -177,13 +177,11 @@ def _unsteered_wheel_z(fp: fitting.Problem, ref_problem: fitting.Problem | None,
         return ch.context.k != 1
 
     def z(v_s):
-        sub = fitting.restrict(fp, unsteered)
-        theta0 = None
-        if ref_problem is not None:
-            ref = fitting.restrict(ref_problem, unsteered)
-            theta0 = fitting.reference_levels(ref, model, [STRIBECK_WHEELS], lag, cache)[
-                STRIBECK_WHEELS.label].get(v_s)
-        return fitting.level_z(sub, model, STRIBECK_WHEELS, v_s, lag, cache, theta0)
+        # the reference run's level at this v_s only (reference_levels would fit the whole grid)
+        ref = None if ref_problem is None else fitting.solve(fitting.restrict(ref_problem, unsteered), model,
+                                                             STRIBECK_WHEELS, v_s, lag, cache)
+        return fitting.level_z(fitting.restrict(fp, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
+                               None if ref is None else ref.theta)
 
     return z
 
