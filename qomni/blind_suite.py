@@ -116,6 +116,7 @@ class CaseResult:
     accepted_variants: list[str] = field(default_factory=list)
     ranking: list[str] = field(default_factory=list)
     true_shrink: dict = field(default_factory=dict)
+    holdout_rms: dict = field(default_factory=dict)   # channel → the base model's held-out RMS
     wall_time: float = 0.0
     error: str = ""
 
@@ -206,12 +207,16 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
         result.accepted = [c.hypothesis.name for c in d.accepted]
         result.accepted_variants = [c.hypothesis.variant for c in d.accepted]
         result.ranking = [c.hypothesis.name for c in d.candidates]
+        if d.candidates:
+            result.holdout_rms = {s.name: s.rms_before for s in d.candidates[0].evaluation.channels}
         for name in case.truth:
             want = case.variants.get(name)
             c = next((c for c in d.candidates if c.hypothesis.name == name
                       and (want is None or c.hypothesis.variant == want)), None)
             if c is not None:
+                ch = next(s for s in c.evaluation.channels if s.name == c.evaluation.affected)
                 result.true_shrink[name] = {"shrink": c.evaluation.shrink_affected,
+                                            "rms_before": ch.rms_before, "rms_after": ch.rms_after,
                                             "ci": list(c.evaluation.shrink_affected_ci),
                                             "channel": c.evaluation.affected,
                                             "magnitude": c.magnitude.value, "unit": c.magnitude.unit}
@@ -261,25 +266,58 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
     return results
 
 
+def noise_floor(ideal: list[CaseResult]) -> dict[str, float]:
+    """Per channel, the held-out RMS the reference model leaves on the ideal cases (their quadratic mean):
+    what no effect can remove, since the ideal emulator has none."""
+    sums: dict[str, list[float]] = {}
+    for r in ideal:
+        for name, rms in r.holdout_rms.items():
+            sums.setdefault(name, []).append(rms**2)
+    return {name: math.sqrt(sum(v) / len(v)) for name, v in sums.items()}
+
+
+def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | None:
+    """1 − RMS(after)/RMS(before) of the residual beyond the noise floor (the ideal cases' RMS in the same
+    channel, taken as independent of the effect's residual): the share of the effect's own held-out
+    residual that the fitted hypothesis removes. None when the channel is not above its floor."""
+    excess_before = rms_before**2 - floor**2
+    if excess_before <= 0:
+        return None
+    return 1.0 - math.sqrt(max(rms_after**2 - floor**2, 0.0) / excess_before)
+
+
+def _median(values: list[float]) -> float | None:
+    return float(sorted(values)[len(values) // 2]) if values else None
+
+
 def score(results: list[CaseResult]) -> dict:
     """Top-1 accuracy over effect cases, false positives (ideal and effect cases), two-effect naming and
-    held-out shrinkage per effect."""
+    held-out shrinkage per effect: of the whole residual in the affected channel (``*_holdout_shrink``)
+    and of its part beyond the ideal cases' floor (``*_excess_shrink``, when the suite has ideal cases)."""
     single = [r for r in results if len(r.case.truth) == 1 and not r.error]
     ideal = [r for r in results if not r.case.truth and not r.error]
     pairs = [r for r in results if len(r.case.truth) > 1 and not r.error]
+    floor = noise_floor(ideal)
     per_effect: dict[str, dict] = {}
     for r in single:
         e = per_effect.setdefault(r.case.entry or r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
-                                                    "shrink": []})
+                                                                    "shrink": [], "excess": []})
         e["cases"] += 1
         e["top1"] += int(r.top1)
         e["false_positives"] += len(r.false_positives)
-        if r.case.truth[0] in r.true_shrink:
-            e["shrink"].append(r.true_shrink[r.case.truth[0]]["shrink"])
+        t = r.true_shrink.get(r.case.truth[0])
+        if t is not None:
+            e["shrink"].append(t["shrink"])
+            if t["channel"] in floor and "rms_before" in t:
+                x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
+                if x is not None:
+                    e["excess"].append(x)
     for e in per_effect.values():
-        s = e.pop("shrink")
-        e["median_holdout_shrink"] = float(sorted(s)[len(s) // 2]) if s else None
+        s, x = e.pop("shrink"), e.pop("excess")
+        e["median_holdout_shrink"] = _median(s)
         e["min_holdout_shrink"] = float(min(s)) if s else None
+        e["median_excess_shrink"] = _median(x)
+        e["min_excess_shrink"] = float(min(x)) if x else None
     return {
         "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,
         "effect_cases": len(single),
@@ -289,6 +327,7 @@ def score(results: list[CaseResult]) -> dict:
         "pair_cases": len(pairs),
         "errors": [f"{r.case.name}: {r.error}" for r in results if r.error],
         "per_effect": per_effect,
+        "noise_floor": floor,
     }
 
 

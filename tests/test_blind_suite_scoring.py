@@ -4,7 +4,7 @@ import pytest
 
 from diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
 from ident.datasheet import DataSheet
-from qomni.blind_suite import Case, CaseResult, cases, score
+from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
 
 
 def _result(entry, truth, variants, accepted, accepted_variants):
@@ -23,7 +23,30 @@ def test_the_wrong_instance_of_the_right_effect_is_not_top1():
     assert s["top1_accuracy"] == 0.5
     assert s["per_effect"]["stribeck_wheels"] == {"cases": 2, "top1": 1, "false_positives": 1,
                                                   "median_holdout_shrink": None,
-                                                  "min_holdout_shrink": None}
+                                                  "min_holdout_shrink": None,
+                                                  "median_excess_shrink": None,
+                                                  "min_excess_shrink": None}
+
+
+def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
+    # Effect residual e (RMS 4) on a floor n (RMS 3): before √(16 + 9) = 5. Removing half of e's RMS
+    # leaves √(4 + 9); the raw shrink is 28 %, the shrink beyond the floor 50 %.
+    assert excess_shrink(5.0, np.sqrt(13.0), 3.0) == pytest.approx(0.5)
+    assert 1 - np.sqrt(13.0) / 5.0 == pytest.approx(0.279, abs=1e-3)
+    assert excess_shrink(5.0, 3.0, 3.0) == pytest.approx(1.0)
+    assert excess_shrink(5.0, 2.9, 3.0) == pytest.approx(1.0)     # below the floor: all of it removed
+    assert excess_shrink(2.9, 2.5, 3.0) is None                   # nothing above the floor to remove
+    ideal = [CaseResult(Case(f"ideal_s{s}", {}, [], s), holdout_rms={"rotation/gamma_ch": rms})
+             for s, rms in ((1, 3.0), (2, 4.0))]
+    assert noise_floor(ideal) == {"rotation/gamma_ch": pytest.approx(np.sqrt(12.5))}
+    heavy = CaseResult(Case("heavy_steering_units_high_s1", {}, ["heavy_steering_units"], 1, "high",
+                            "heavy_steering_units"), accepted=["heavy_steering_units"], accepted_variants=[""],
+                       true_shrink={"heavy_steering_units": {"shrink": 0.2, "channel": "rotation/gamma_ch",
+                                                             "rms_before": 5.0, "rms_after": 4.0}})
+    e = score(ideal + [heavy])["per_effect"]["heavy_steering_units"]
+    assert e["median_holdout_shrink"] == 0.2
+    assert e["median_excess_shrink"] == pytest.approx(1 - np.sqrt((16 - 12.5) / (25 - 12.5)))
+    assert score([heavy])["per_effect"]["heavy_steering_units"]["median_excess_shrink"] is None
 
 
 def test_suite_cases_say_which_drive_and_joints():

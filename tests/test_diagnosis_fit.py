@@ -74,3 +74,24 @@ def test_held_out_confirmation_needs_the_overall_residual_not_to_grow():
     # one steering side 14 % better, the other worse: more held-out residual overall
     assert not evaluation(100.0, 122.3, 0.14).confirms(0.1)
     assert not evaluation(100.0, 99.0, 0.05).confirms(0.1)
+
+
+def test_an_effect_collinear_with_a_base_parameter_is_seen_only_beyond_that_parameters_prior():
+    # Heavy steering units in the rotation: the effect's column is a base column (C_ch's). The base may
+    # move by 3 σ_model; what lies beyond that is the effect's.
+    rng = np.random.default_rng(8)
+    ch = _channel("rotation/gamma_ch", rng)
+    ch.phi = ch.base[:, 7].copy()
+    ch.residual = 0.5 * ch.phi + rng.normal(size=N_ROWS)
+    tight = NS(std_vector=np.full(10, 0.01), p1=np.full(10, 300.0))
+    loose = NS(std_vector=np.full(10, 1.0), p1=np.full(10, 300.0))
+    assert fitting.level_z(_problem([ch]), tight, LEVEL, None, 1) > 5
+    assert abs(fitting.level_z(_problem([ch]), loose, LEVEL, None, 1)) < 3
+    assert np.array_equal(fitting.base_prior_std(tight), np.full(10, 0.03))   # no floor relative to |p|
+
+
+def test_a_model_without_a_standard_deviation_is_refused_by_name():
+    std = np.full(10, 0.01)
+    std[7] = 0.0
+    with pytest.raises(ValueError, match="C_ch"):
+        fitting.base_prior_std(NS(std_vector=std, p1=np.ones(10)))
