@@ -152,13 +152,22 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z
     wheel variant's level fitted on those steps alone beyond the reference run's level there
     (:func:`diagnosis.fit.level_z`). When the steering variant is significant and that z reaches
     ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
-    friction, the unsteered steps place it in the wheel joints."""
+    friction, the unsteered steps place it in the wheel joints. Below it the steering variant is, even
+    where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
+    friction do not."""
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
     if wheels is None or steering is None or not steering.significant:
         return
     z = unsteered_z(wheels.fit.nonlinear)
-    if z is None or z < WHEEL_FRICTION_Z:
+    if z is None:
+        return
+    if z < WHEEL_FRICTION_Z:
+        if wheels.significant:
+            wheels.significant = False
+            wheels.notes.append(f"the steering joints' variant is preferred: this one's level in the steps "
+                                f"without steering motion is not beyond the reference run's (z = {z:.1f} "
+                                f"< {WHEEL_FRICTION_Z})")
         return
     steering.significant = False
     steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
