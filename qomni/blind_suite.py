@@ -214,9 +214,10 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
             c = next((c for c in d.candidates if c.hypothesis.name == name
                       and (want is None or c.hypothesis.variant == want)), None)
             if c is not None:
-                ch = next(s for s in c.evaluation.channels if s.name == c.evaluation.affected)
+                ch = next((s for s in c.evaluation.channels if s.name == c.evaluation.affected), None)
                 result.true_shrink[name] = {"shrink": c.evaluation.shrink_affected,
-                                            "rms_before": ch.rms_before, "rms_after": ch.rms_after,
+                                            "rms_before": ch.rms_before if ch else None,
+                                            "rms_after": ch.rms_after if ch else None,
                                             "ci": list(c.evaluation.shrink_affected_ci),
                                             "channel": c.evaluation.affected,
                                             "magnitude": c.magnitude.value, "unit": c.magnitude.unit}
@@ -308,7 +309,7 @@ def score(results: list[CaseResult]) -> dict:
         t = r.true_shrink.get(r.case.truth[0])
         if t is not None:
             e["shrink"].append(t["shrink"])
-            if t["channel"] in floor and "rms_before" in t:
+            if t["channel"] in floor and t.get("rms_before") is not None:
                 x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
                 if x is not None:
                     e["excess"].append(x)

@@ -88,6 +88,11 @@ def test_score_counts_top1_and_false_positives(suite):
     assert s["top1_accuracy"] == 1.0
     assert s["ideal_false_positives"] == 0
     assert s["pairs_both_named"] == 1
+    # the ideal case sets each channel's noise floor; the faulty drive's residual lies well above it
+    assert set(results["ideal"].holdout_rms) >= {"straight/x_ch", "rotation/gamma_ch"}
+    assert s["noise_floor"]["rotation/gamma_ch"] == pytest.approx(results["ideal"].holdout_rms["rotation/gamma_ch"])
+    torque = s["per_effect"]["torque_constant_error"]
+    assert torque["median_excess_shrink"] >= torque["median_holdout_shrink"] >= 0.5
 
 
 def test_run_directories_hold_no_effect(suite):
