@@ -181,7 +181,7 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z
 def _unsteered_wheel_z(fp: fitting.Problem, ref_problem: fitting.Problem | None, model, lag: int,
                        cache: dict):
     """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
-    reference run's level in the same steps (0 without a reference run)."""
+    reference run's level in the same steps (beyond 0 without a reference run)."""
     def unsteered(ch):
         return ch.context.k != 1
 

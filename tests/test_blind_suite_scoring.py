@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
+from diagnosis.fit import ChannelShrink
 from ident.datasheet import DataSheet
 from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
 
@@ -32,7 +33,7 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
     # Effect residual e (RMS 4) on a floor n (RMS 3): before √(16 + 9) = 5. Removing half of e's RMS
     # leaves √(4 + 9); the raw shrink is 28 %, the shrink beyond the floor 50 %.
     assert excess_shrink(5.0, np.sqrt(13.0), 3.0) == pytest.approx(0.5)
-    assert 1 - np.sqrt(13.0) / 5.0 == pytest.approx(0.279, abs=1e-3)
+    assert ChannelShrink("rotation/gamma_ch", 5.0, np.sqrt(13.0)).shrink == pytest.approx(0.279, abs=1e-3)
     assert excess_shrink(5.0, 3.0, 3.0) == pytest.approx(1.0)
     assert excess_shrink(5.0, 2.9, 3.0) == pytest.approx(1.0)     # below the floor: all of it removed
     assert excess_shrink(2.9, 2.5, 3.0) is None                   # nothing above the floor to remove
