@@ -17,7 +17,9 @@ name                       columns                                         magni
 =========================  ==============================================  =====================
 payload                    Θ̂_{m_ch}, Θ̂_{C_ch}, centre-of-mass offset       Δm [kg]
 incline                    m_ch·g along world x, y in the chassis frame   angle [rad]
-stribeck (wheels/steering) d_c·exp(−(v/v_s)²)·tanh(v/ε), v_s profiled      breakaway ratio − 1
+stribeck (wheels/steering) d_c·exp(−(v/v_s)²)·s(v), v_s profiled; s the   breakaway ratio − 1
+                           direction of sliding, or of the motion ending a
+                           stick
 rolling_resistance         (m_ch g r / 4)·tanh(β̇_i/ε) per wheel           c_rr [-]
 actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled           T_d [s]
 torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
@@ -46,6 +48,9 @@ from .channels import ChannelData
 
 GRAVITY = 9.81
 EPS_SIGN = 0.01  # rad/s, tanh smoothing of friction signs (the model's ε)
+#: N m motor side: drive torque below which a gear floats in its backlash and a sticking joint is pushed
+#: neither way.
+BACKLASH_TORQUE_SCALE = 0.05
 
 
 @dataclass(frozen=True)
@@ -205,8 +210,33 @@ INCLINE = Hypothesis("incline", "", ("sin_x", "sin_y"), _incline_columns, magnit
 
 
 # --- Stribeck ----------------------------------------------------------------------------------------
+#: rad/s, joint side: below this speed a joint is taken as sticking. Its friction then holds against the
+#: motion that breaks it loose, so its direction is that motion's, which tanh(v/ε) of the filtered speed
+#: (≈ 0 there) does not give: the stick-slip transients at every reversal are where a friction peak
+#: shows most, and the filter spreads them into the moving rows next to the stuck ones.
+STICK_VELOCITY = 0.01
+
+
+def _friction_direction(v: np.ndarray) -> np.ndarray:
+    """(N, m) direction friction acts in, within ±1: tanh(v/ε) where a joint slides, and where it sticks
+    the sign of the motion that ends the stick (the motion before it if none follows)."""
+    v = np.asarray(v, dtype=float)
+    out = np.tanh(v / EPS_SIGN)
+    rows = np.arange(len(v))
+    for j in range(v.shape[1]):
+        sliding = np.abs(v[:, j]) > STICK_VELOCITY
+        if not sliding.any():
+            continue
+        slide_rows = rows[sliding]
+        nxt = np.searchsorted(slide_rows, rows)  # first sliding row at or after each row
+        nxt = np.where(nxt < len(slide_rows), slide_rows[np.minimum(nxt, len(slide_rows) - 1)],
+                       slide_rows[-1])
+        out[~sliding, j] = np.sign(v[nxt[~sliding], j])
+    return out
+
+
 def _stribeck(v, v_s):
-    return np.exp(-(v / v_s) ** 2) * np.tanh(v / EPS_SIGN)
+    return np.exp(-(v / v_s) ** 2) * _friction_direction(v)
 
 
 STRIBECK_VELOCITIES = (0.02, 0.05, 0.1, 0.2, 0.4)  # rad/s, joint side
@@ -215,17 +245,19 @@ STRIBECK_VELOCITIES = (0.02, 0.05, 0.1, 0.2, 0.4)  # rad/s, joint side
 @_torque_only
 def _stribeck_wheel_columns(ch: ChannelData, v_s):
     st = ch.context.st
+    v = st.qd_coulomb[:, 5:9]
     Q = np.zeros((len(st.time), 9))
-    Q[:, 5:9] = ch.context.p[9] * _stribeck(st.qd_coulomb[:, 5:9], v_s)
+    Q[:, 5:9] = ch.context.p[9] * _stribeck(v, v_s)
     return _project(ch, Q, smooth=True)[:, None]
 
 
 @_torque_only
 def _stribeck_steering_columns(ch: ChannelData, v_s):
     ctx = ch.context
+    peak = _stribeck(ctx.alpha_dot_encoder, v_s)
     Q = np.zeros((len(ctx.st.time), 9))
-    Q[:, 3] = ctx.p[2] * _stribeck(ctx.alpha_dot_encoder[:, 0], v_s)
-    Q[:, 4] = ctx.p[5] * _stribeck(ctx.alpha_dot_encoder[:, 1], v_s)
+    Q[:, 3] = ctx.p[2] * peak[:, 0]
+    Q[:, 4] = ctx.p[5] * peak[:, 1]
     return _project(ch, Q, smooth=True)[:, None]
 
 
@@ -322,9 +354,6 @@ def _radius_magnitude(theta, cov, nonlinear, sheet):
 #: two runs of the same vehicle differ by ~0.03 %; a real radius error of worn or other tyres is 1–5 %.
 WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_columns,
                           magnitude=_radius_magnitude, relevant=0.0025)
-
-BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
-
 
 def _backlash_columns(ch: ChannelData, _):
     if ch.kind == "torque":
