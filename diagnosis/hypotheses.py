@@ -48,9 +48,6 @@ from .channels import ChannelData
 
 GRAVITY = 9.81
 EPS_SIGN = 0.01  # rad/s, tanh smoothing of friction signs (the model's ε)
-#: N m motor side: drive torque below which a gear floats in its backlash and a sticking joint is pushed
-#: neither way.
-BACKLASH_TORQUE_SCALE = 0.05
 
 
 @dataclass(frozen=True)
@@ -228,10 +225,9 @@ def _friction_direction(v: np.ndarray) -> np.ndarray:
         if not sliding.any():
             continue
         slide_rows = rows[sliding]
-        nxt = np.searchsorted(slide_rows, rows)  # first sliding row at or after each row
-        nxt = np.where(nxt < len(slide_rows), slide_rows[np.minimum(nxt, len(slide_rows) - 1)],
-                       slide_rows[-1])
-        out[~sliding, j] = np.sign(v[nxt[~sliding], j])
+        # the first sliding row after each stuck one, or the last sliding row when none follows
+        after = np.minimum(np.searchsorted(slide_rows, rows[~sliding]), len(slide_rows) - 1)
+        out[~sliding, j] = np.sign(v[slide_rows[after], j])
     return out
 
 
@@ -245,9 +241,8 @@ STRIBECK_VELOCITIES = (0.02, 0.05, 0.1, 0.2, 0.4)  # rad/s, joint side
 @_torque_only
 def _stribeck_wheel_columns(ch: ChannelData, v_s):
     st = ch.context.st
-    v = st.qd_coulomb[:, 5:9]
     Q = np.zeros((len(st.time), 9))
-    Q[:, 5:9] = ch.context.p[9] * _stribeck(v, v_s)
+    Q[:, 5:9] = ch.context.p[9] * _stribeck(st.qd_coulomb[:, 5:9], v_s)
     return _project(ch, Q, smooth=True)[:, None]
 
 
@@ -354,6 +349,9 @@ def _radius_magnitude(theta, cov, nonlinear, sheet):
 #: two runs of the same vehicle differ by ~0.03 %; a real radius error of worn or other tyres is 1–5 %.
 WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_columns,
                           magnitude=_radius_magnitude, relevant=0.0025)
+
+BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
+
 
 def _backlash_columns(ch: ChannelData, _):
     if ch.kind == "torque":

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -287,10 +288,6 @@ def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | 
     return 1.0 - math.sqrt(max(rms_after**2 - floor**2, 0.0) / excess_before)
 
 
-def _median(values: list[float]) -> float | None:
-    return float(sorted(values)[len(values) // 2]) if values else None
-
-
 def score(results: list[CaseResult]) -> dict:
     """Top-1 accuracy over effect cases, false positives (ideal and effect cases), two-effect naming and
     held-out shrinkage per effect: of the whole residual in the affected channel (``*_holdout_shrink``)
@@ -315,9 +312,9 @@ def score(results: list[CaseResult]) -> dict:
                     e["excess"].append(x)
     for e in per_effect.values():
         s, x = e.pop("shrink"), e.pop("excess")
-        e["median_holdout_shrink"] = _median(s)
+        e["median_holdout_shrink"] = float(statistics.median_high(s)) if s else None
         e["min_holdout_shrink"] = float(min(s)) if s else None
-        e["median_excess_shrink"] = _median(x)
+        e["median_excess_shrink"] = float(statistics.median_high(x)) if x else None
         e["min_excess_shrink"] = float(min(x)) if x else None
     return {
         "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,
