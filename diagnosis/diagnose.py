@@ -100,6 +100,8 @@ class Diagnosis:
     problems: tuple = field(repr=False, default=())
     base_fit: fitting.Fit | None = field(repr=False, default=None)
     final_fit: fitting.Fit | None = field(repr=False, default=None)
+    #: channel → held-out RMS of the model (base fit) in the channel's unit
+    holdout_rms: dict = field(default_factory=dict)
 
 
 def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels):
@@ -117,7 +119,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
                                           for nl, theta0 in own.items()}
         cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache, reference,
-                                      hold_tail=len(h.parameters))
+                                      hold_tail=len(h.parameters) - h.nuisance)
         if cand is None:
             continue
         q = len(h.parameters)
@@ -132,7 +134,8 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
                                     cand.p_value, cand.evaluation,
                                     fitting.collinearity(fp, h, cand.fit.nonlinear, cache),
                                     physical, True, ["accepted in forward selection with "
-                                                     + ", ".join(c.hypothesis.label for c in accepted)])
+                                                     + ", ".join(c.hypothesis.label for c in accepted)],
+                                    cand.added_to_model)
             best = (sub, cand.fit)
     return best
 
@@ -284,11 +287,12 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
+    holdout_rms = {c.name: c.rms_before for c in fitting.evaluate(hp, base, base, cache).channels}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
-                     chans, (fp, hp), base, final)
+                     chans, (fp, hp), base, final, holdout_rms)
 
 
 #: Effects the paper's parameters can carry: name → {parameter: (coefficient, scale(p, r))}.

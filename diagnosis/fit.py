@@ -396,21 +396,34 @@ class Candidate:
     physical: bool
     significant: bool = False
     notes: list[str] = field(default_factory=list)
+    #: Held-out comparison of the model the hypothesis is added to (the base fit, with the accepted
+    #: effects in forward selection) and the extended fit: how far the residual shrinks once the effect
+    #: is added. ``evaluation`` starts instead from the significance test's base (which ranks and gates):
+    #: the level the reference run already has of the hypothesis, with its nuisance coefficients free.
+    #: None: the two are the same.
+    added_to_model: Evaluation | None = None
 
     @property
     def name(self) -> str:
         return self.hypothesis.name
 
+    @property
+    def shrink(self) -> Evaluation:
+        """The held-out before/after of adding the effect to the model (``added_to_model``)."""
+        return self.added_to_model if self.added_to_model is not None else self.evaluation
+
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
                    h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,
                    reference: dict | None = None, hold_tail: int | None = None) -> Candidate | None:
-    """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows.
+    """Profile the hypothesis' non-linear parameter, fit, test and evaluate it on held-out rows: from
+    the test's base (the reference level θ₀, ``Candidate.evaluation``) and from ``base`` (the model it
+    is added to, ``Candidate.added_to_model``).
 
     ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
     test is then whether the data need more of it than the reference had (θ ≠ θ₀). ``hold_tail``: for
     a joint hypothesis (accepted effects + a new one) only its last ``hold_tail`` coefficients are held
-    at θ₀ in the base it is tested against (default: all).
+    at θ₀ in the base it is tested against (default: all but the hypothesis' ``nuisance`` ones).
 
     The profile is constrained: of the grid points whose linear coefficients are physically admissible
     (``h.physical``) the best is taken; only when none is, the best of all (then reported as
@@ -422,20 +435,24 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
         if ext is None:
             continue
-        held = len(h.parameters) if hold_tail is None else hold_tail
+        held = len(h.parameters) - h.nuisance if hold_tail is None else hold_tail
+        if theta0 is None and held < len(h.parameters):
+            theta0 = np.zeros(len(h.parameters))   # the nuisance coefficients are free in the test's base too
+            ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
         ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
                                                       theta0=theta0, held=held)
         fits.append((ext.rss - ext_base.rss, bool(h.physical(ext.theta)), ext, ext_base))
     if not fits:
         return None
     admissible = [f for f in fits if f[1]] or fits
-    _, _, best, base = min(admissible, key=lambda f: f[0])
-    p_value = f_test(base, best, extra_dof=0 if h.grid == (None,) else 1)
-    evaluation = evaluate(hold_problem, base, best, cache)
+    _, _, best, test_base = min(admissible, key=lambda f: f[0])
+    p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1)
+    evaluation = evaluate(hold_problem, test_base, best, cache)
+    added = None if test_base is base else evaluate(hold_problem, base, best, cache)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = plausible(h, best.theta)
-    cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical)
+    cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical, added_to_model=added)
     if best.theta0 is not None and np.any(best.theta0 != 0):
         cand.notes.append("the model's own run already shows a level "
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")

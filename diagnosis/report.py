@@ -56,7 +56,7 @@ def _finite(x):
 
 def candidate_json(c: Candidate, rank: int) -> dict:
     m = c.magnitude
-    ev = c.evaluation
+    ev = c.shrink
     return {
         "rank": rank,
         "name": c.hypothesis.name,
@@ -69,8 +69,9 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "p_value": c.p_value,
         "holdout_shrink": ev.shrink_affected,
         "holdout_shrink_ci": list(ev.shrink_affected_ci),
+        "holdout_shrink_beyond_reference": c.evaluation.shrink_affected,
         "affected_channel": ev.affected,
-        "holdout_removed": ev.removed,
+        "holdout_removed": c.evaluation.removed,
         "holdout_channels": {s.name: {"rms_before": s.rms_before, "rms_after": s.rms_after,
                                       "shrink": s.shrink} for s in ev.channels},
         "nonlinear_parameter": None if c.fit.nonlinear is None else
@@ -96,6 +97,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "model": d.model_source,
         "data": d.data_source,
         "base_parameter_shift": d.base_delta_p,
+        "model_holdout_rms": d.holdout_rms,
         "where": d.where,
         "simulation": d.simulation,
     })
@@ -140,7 +142,7 @@ def _figures(d: Diagnosis) -> list[tuple[str, str]]:
     # Which: ranking.
     top = d.candidates[:12]
     fig, ax = plt.subplots(figsize=(8, 0.35 * len(top) + 1))
-    ax.barh([c.hypothesis.label for c in top], [100 * c.evaluation.shrink_affected for c in top],
+    ax.barh([c.hypothesis.label for c in top], [100 * c.shrink.shrink_affected for c in top],
             color=["tab:green" if c.significant else "tab:gray" for c in top])
     ax.set_xlabel("held-out residual removed in the affected channel [%] (green: significant)")
     ax.invert_yaxis()

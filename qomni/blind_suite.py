@@ -208,19 +208,20 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
         result.accepted = [c.hypothesis.name for c in d.accepted]
         result.accepted_variants = [c.hypothesis.variant for c in d.accepted]
         result.ranking = [c.hypothesis.name for c in d.candidates]
-        if d.candidates:
-            result.holdout_rms = {s.name: s.rms_before for s in d.candidates[0].evaluation.channels}
+        result.holdout_rms = dict(d.holdout_rms)
         for name in case.truth:
             want = case.variants.get(name)
             c = next((c for c in d.candidates if c.hypothesis.name == name
                       and (want is None or c.hypothesis.variant == want)), None)
             if c is not None:
-                ch = next((s for s in c.evaluation.channels if s.name == c.evaluation.affected), None)
-                result.true_shrink[name] = {"shrink": c.evaluation.shrink_affected,
+                ev = c.shrink
+                ch = next((s for s in ev.channels if s.name == ev.affected), None)
+                result.true_shrink[name] = {"shrink": ev.shrink_affected,
+                                            "beyond_reference": c.evaluation.shrink_affected,
                                             "rms_before": ch.rms_before if ch else None,
                                             "rms_after": ch.rms_after if ch else None,
-                                            "ci": list(c.evaluation.shrink_affected_ci),
-                                            "channel": c.evaluation.affected,
+                                            "ci": list(ev.shrink_affected_ci),
+                                            "channel": ev.affected,
                                             "magnitude": c.magnitude.value, "unit": c.magnitude.unit}
     except Exception as exc:  # a failed case is reported, not fatal to the suite
         result.error = f"{type(exc).__name__}: {exc}"
@@ -290,8 +291,10 @@ def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | 
 
 def score(results: list[CaseResult]) -> dict:
     """Top-1 accuracy over effect cases, false positives (ideal and effect cases), two-effect naming and
-    held-out shrinkage per effect: of the whole residual in the affected channel (``*_holdout_shrink``)
-    and of its part beyond the ideal cases' floor (``*_excess_shrink``, when the suite has ideal cases)."""
+    held-out shrinkage per effect once the named effect is added to the model: of the whole residual in
+    the affected channel (``*_holdout_shrink``), of its part beyond the ideal cases' floor
+    (``*_excess_shrink``, when the suite has ideal cases), and from the reference run's level of the
+    hypothesis instead of the model (``median_beyond_reference_shrink``, the significance gate's)."""
     single = [r for r in results if len(r.case.truth) == 1 and not r.error]
     ideal = [r for r in results if not r.case.truth and not r.error]
     pairs = [r for r in results if len(r.case.truth) > 1 and not r.error]
@@ -299,23 +302,25 @@ def score(results: list[CaseResult]) -> dict:
     per_effect: dict[str, dict] = {}
     for r in single:
         e = per_effect.setdefault(r.case.entry or r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
-                                                                    "shrink": [], "excess": []})
+                                                                    "shrink": [], "excess": [], "beyond": []})
         e["cases"] += 1
         e["top1"] += int(r.top1)
         e["false_positives"] += len(r.false_positives)
         t = r.true_shrink.get(r.case.truth[0])
         if t is not None:
             e["shrink"].append(t["shrink"])
+            e["beyond"].append(t.get("beyond_reference", t["shrink"]))
             if t["channel"] in floor and t.get("rms_before") is not None:
                 x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
                 if x is not None:
                     e["excess"].append(x)
     for e in per_effect.values():
-        s, x = e.pop("shrink"), e.pop("excess")
+        s, x, b = e.pop("shrink"), e.pop("excess"), e.pop("beyond")
         e["median_holdout_shrink"] = float(statistics.median_high(s)) if s else None
         e["min_holdout_shrink"] = float(min(s)) if s else None
         e["median_excess_shrink"] = float(statistics.median_high(x)) if x else None
         e["min_excess_shrink"] = float(min(x)) if x else None
+        e["median_beyond_reference_shrink"] = float(statistics.median_high(b)) if b else None
     return {
         "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,
         "effect_cases": len(single),

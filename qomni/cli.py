@@ -348,7 +348,7 @@ def diagnose(
         m = c.magnitude
         table.add_row(str(i + 1), c.hypothesis.label, f"{m.value:.4g} {m.unit}",
                       f"[{m.ci[0]:.3g}, {m.ci[1]:.3g}]", f"{c.p_value:.1e}",
-                      f"{100 * c.evaluation.shrink_affected:.1f} %", c.evaluation.affected,
+                      f"{100 * c.shrink.shrink_affected:.1f} %", c.shrink.affected,
                       "yes" if c.significant else "no")
     console.print(table)
     console.print(f"[bold]verdict:[/] {d.verdict}")

@@ -26,7 +26,8 @@ def test_the_wrong_instance_of_the_right_effect_is_not_top1():
                                                   "median_holdout_shrink": None,
                                                   "min_holdout_shrink": None,
                                                   "median_excess_shrink": None,
-                                                  "min_excess_shrink": None}
+                                                  "min_excess_shrink": None,
+                                                  "median_beyond_reference_shrink": None}
 
 
 def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
@@ -43,9 +44,11 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
     heavy = CaseResult(Case("heavy_steering_units_high_s1", {}, ["heavy_steering_units"], 1, "high",
                             "heavy_steering_units"), accepted=["heavy_steering_units"], accepted_variants=[""],
                        true_shrink={"heavy_steering_units": {"shrink": 0.2, "channel": "rotation/gamma_ch",
-                                                             "rms_before": 5.0, "rms_after": 4.0}})
+                                                             "rms_before": 5.0, "rms_after": 4.0,
+                                                             "beyond_reference": 0.15}})
     e = score(ideal + [heavy])["per_effect"]["heavy_steering_units"]
     assert e["median_holdout_shrink"] == 0.2
+    assert e["median_beyond_reference_shrink"] == 0.15
     assert e["median_excess_shrink"] == pytest.approx(1 - np.sqrt((16 - 12.5) / (25 - 12.5)))
     assert score([heavy])["per_effect"]["heavy_steering_units"]["median_excess_shrink"] is None
 

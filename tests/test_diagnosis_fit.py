@@ -95,3 +95,72 @@ def test_a_model_without_a_standard_deviation_is_refused_by_name():
     std[7] = 0.0
     with pytest.raises(ValueError, match="C_ch"):
         fitting.base_prior_std(NS(std_vector=std, p1=np.ones(10)))
+
+
+def _alternating_windows(channels):
+    """Fit on even windows of 40 rows, hold out the odd ones (as make_problem does with 1 s windows)."""
+    win = np.arange(N_ROWS) // 40
+    fit = fitting.Problem(channels, [win % 2 == 0 for _ in channels], [win % 2 == 1 for _ in channels],
+                          np.ones(len(channels)), [win for _ in channels])
+    hold = fitting.Problem(channels, [win % 2 == 1 for _ in channels], [win % 2 == 1 for _ in channels],
+                           np.ones(len(channels)), [win for _ in channels])
+    return fit, hold
+
+
+def test_held_out_shrink_is_reported_from_the_model_and_gated_beyond_the_reference_level():
+    # The reference run already holds 0.6 of the column (real static friction's stick-slip in a
+    # Stribeck column); the data hold 1.0. Significance asks for more than 0.6; the shrink the
+    # diagnosis reports is that of adding the effect (θ = 1.0) to the model, which has none of it.
+    rng = np.random.default_rng(9)
+    ch = _channel("steer_left/alpha_l", rng, planted=0.0)
+    ch.phi = np.sign(np.sin(np.arange(N_ROWS) / 7.0)) * 3.0
+    noise = rng.normal(size=N_ROWS)
+    ch.residual = 1.0 * ch.phi + noise
+    fit_p, hold_p = _alternating_windows([ch])
+    with_magnitude = Hypothesis("level", "", ("c",), lambda c, _: c.phi[:, None],
+                                magnitude=lambda t, cov, nl, sheet: None)
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    plain = fitting.fit_hypothesis(fit_p, hold_p, MODEL, with_magnitude, base, 1, None, {})
+    beyond = fitting.fit_hypothesis(fit_p, hold_p, MODEL, with_magnitude, base, 1, None, {},
+                                    reference={None: np.array([0.6])})
+    held = hold_p.holdout_rows[0]
+
+    def shrink(level):
+        return 1 - np.sqrt(np.mean(noise[held] ** 2) / np.mean((level * ch.phi[held] + noise[held]) ** 2))
+
+    assert plain.added_to_model is None and plain.shrink is plain.evaluation
+    assert beyond.fit.theta[0] == pytest.approx(1.0, abs=0.05)
+    assert beyond.shrink.shrink_affected == pytest.approx(shrink(1.0), abs=0.02)
+    assert beyond.evaluation.shrink_affected == pytest.approx(shrink(0.4), abs=0.02)
+    assert beyond.shrink.shrink_affected == pytest.approx(plain.shrink.shrink_affected, abs=1e-6)
+    assert beyond.shrink.affected == beyond.evaluation.affected == "steer_left/alpha_l"
+
+
+def test_a_nuisance_coefficient_is_free_in_the_tests_base_and_part_of_the_reported_shrink():
+    # Backlash's tyre creep is a wheel radius' signature too: the gap must be tested with the creep
+    # free on both sides of the test, while the shrink of adding the effect counts both.
+    rng = np.random.default_rng(10)
+    t = np.arange(N_ROWS)
+    creep = np.cos(t / 9.0) * 3.0
+    lead = np.sign(np.sin(t / 5.0)) * 3.0
+
+    def hypothesis(nuisance):
+        return Hypothesis("backlash_like", "", ("creep", "gap"), lambda c, _: np.column_stack([c.creep, c.lead]),
+                          magnitude=lambda th, cov, nl, sheet: None, nuisance=nuisance,
+                          physical=lambda th: th[1] > 0)
+
+    def candidate(gap, nuisance):
+        ch = _channel("steer_right/kinematic_fr", rng)
+        ch.creep, ch.lead = creep, lead
+        ch.residual = 1.0 * creep + gap * lead + rng.normal(size=N_ROWS)
+        fit_p, hold_p = _alternating_windows([ch])
+        base = fitting.solve(fit_p, MODEL, None, None, 1)
+        return fitting.fit_hypothesis(fit_p, hold_p, MODEL, hypothesis(nuisance), base, 1, None, {})
+
+    creep_only = candidate(0.0, nuisance=1)
+    assert creep_only.p_value > 1e-3 and abs(creep_only.evaluation.removed) < 30
+    assert candidate(0.0, nuisance=0).p_value < 1e-20           # tested as a whole, the creep alone passes
+    both = candidate(0.5, nuisance=1)
+    assert both.p_value < 1e-20 and both.fit.theta == pytest.approx([1.0, 0.5], abs=0.05)
+    # the test's shrink is the gap's alone; the shrink of adding the effect to the model also has the creep
+    assert both.shrink.shrink_affected > both.evaluation.shrink_affected + 0.2
