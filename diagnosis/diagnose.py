@@ -119,7 +119,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
                                           for nl, theta0 in own.items()}
         cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache, reference,
-                                      hold_tail=len(h.parameters) - h.nuisance)
+                                      hold_tail=len(h.parameters))
         if cand is None:
             continue
         q = len(h.parameters)

@@ -399,8 +399,7 @@ class Candidate:
     #: Held-out comparison of the model the hypothesis is added to (the base fit, with the accepted
     #: effects in forward selection) and the extended fit: how far the residual shrinks once the effect
     #: is added. ``evaluation`` starts instead from the significance test's base (which ranks and gates):
-    #: the level the reference run already has of the hypothesis, with its nuisance coefficients free.
-    #: None: the two are the same.
+    #: the level the reference run already has of the hypothesis. None: the two are the same.
     added_to_model: Evaluation | None = None
 
     @property
@@ -423,7 +422,7 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     ``reference``: ``{non-linear value: θ₀}``, the hypothesis' level fitted on the model's own run; the
     test is then whether the data need more of it than the reference had (θ ≠ θ₀). ``hold_tail``: for
     a joint hypothesis (accepted effects + a new one) only its last ``hold_tail`` coefficients are held
-    at θ₀ in the base it is tested against (default: all but the hypothesis' ``nuisance`` ones).
+    at θ₀ in the base it is tested against (default: all).
 
     The profile is constrained: of the grid points whose linear coefficients are physically admissible
     (``h.physical``) the best is taken; only when none is, the best of all (then reported as
@@ -435,10 +434,7 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
         if ext is None:
             continue
-        held = len(h.parameters) - h.nuisance if hold_tail is None else hold_tail
-        if theta0 is None and held < len(h.parameters):
-            theta0 = np.zeros(len(h.parameters))   # the nuisance coefficients are free in the test's base too
-            ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
+        held = len(h.parameters) if hold_tail is None else hold_tail
         ext_base = base if theta0 is None else solve(fit_problem, model, h, nonlinear, lag, cache,
                                                       theta0=theta0, held=held)
         fits.append((ext.rss - ext_base.rss, bool(h.physical(ext.theta)), ext, ext_base))

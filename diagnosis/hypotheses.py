@@ -24,8 +24,7 @@ rolling_resistance         (m_ch g r / 4)·tanh(β̇_i/ε) per wheel           c
 actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled           T_d [s]
 torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
 wheel_radius               (kinematic) predicted rolling angle              r_nominal/r − 1 [-]
-backlash                   (kinematic, rolling) ½·sign(u_i); (kinematic)    gap [rad, wheel side]
-                           tyre creep ∝ rolled angle, tested as nuisance
+backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
 steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
                            drag μN·|T|/k of the toed rear wheels
 tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
@@ -75,10 +74,8 @@ class Hypothesis:
         magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
         physical: ``θ -> bool``: whether the fitted sign is physically possible.
         absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
-        relevant: smallest |θ| (first tested coefficient) of practical relevance; a smaller effect is
-            not reported as significant however well the data determine it.
-        nuisance: number of leading coefficients that belong to the effect's signature but are not
-            what it is tested on: they are fitted freely in the significance test's base too.
+        relevant: smallest |θ| (first coefficient) of practical relevance; a smaller effect is not
+            reported as significant however well the data determine it.
     """
 
     name: str
@@ -91,7 +88,6 @@ class Hypothesis:
     absorbed_by: tuple[str, ...] = ()
     nonlinear_unit: str = ""
     relevant: float = 0.0
-    nuisance: int = 0
 
     @property
     def label(self) -> str:
@@ -100,7 +96,7 @@ class Hypothesis:
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:
     """Physically possible and of practically relevant size."""
-    return bool(h.physical(theta)) and (h.relevant == 0 or abs(float(theta[h.nuisance])) >= h.relevant)
+    return bool(h.physical(theta)) and (h.relevant == 0 or abs(float(theta[0])) >= h.relevant)
 
 
 # --- helpers ---------------------------------------------------------------------------------------
@@ -330,13 +326,6 @@ TORQUE_CONSTANT = tuple(
 
 
 # --- kinematic hypotheses ----------------------------------------------------------------------------
-def _rolled_angle(ch: ChannelData) -> np.ndarray:
-    """(n,) a kinematic channel's predicted rolling angle (H₁)_{β_i}(α − α(t₀)), rad wheel side."""
-    st, side = ch.context.st, SIDE_INDEX[ch.index]
-    H1 = ch.context.H[:, 5 + ch.index, side]
-    return ch.rows(H1 * (st.q[:, 3 + side] - st.q[0, 3 + side]))
-
-
 def _radius_columns(ch: ChannelData, _):
     if ch.kind == "rolling":
         return None  # one radius error scales every wheel's rolling alike: a rigid twist, not redundant
@@ -344,7 +333,9 @@ def _radius_columns(ch: ChannelData, _):
         # The same ε = r_nominal/r − 1 scales the wheels' lever on every generalized force: to first
         # order the applied input is (1 + ε)·H_kᵀBu while the model reads H_kᵀBu.
         return -_project(ch, _input_torque(ch))[:, None]
-    return _rolled_angle(ch)[:, None]
+    st, side = ch.context.st, SIDE_INDEX[ch.index]
+    H1 = ch.context.H[:, 5 + ch.index, side]
+    return ch.rows(H1 * (st.q[:, 3 + side] - st.q[0, 3 + side]))[:, None]
 
 
 def _radius_magnitude(theta, cov, nonlinear, sheet):
@@ -367,27 +358,20 @@ def _backlash_columns(ch: ChannelData, _):
         return None
     st = ch.context.st
     if ch.kind == "kinematic":
-        # creep: the tooth contact rings (motor rotor against the wheel through the stiff engaged
-        # teeth), and the tyre creeps in the driving direction by a share of the rolled angle; lead:
-        # the encoder reads the motor, half the gap ahead of the wheel in the direction of the torque
-        lead = ch.rows(0.5 * np.tanh(st.motor_torque[:, ch.index] / BACKLASH_TORQUE_SCALE))
-        return np.column_stack([_rolled_angle(ch), lead])
-    # The longitudinal rows (−r β̇) see the rate of the lead. A creep alike at every wheel is a rigid
-    # twist there, not a violation of the redundant constraints.
+        return ch.rows(0.5 * np.tanh(st.motor_torque[:, ch.index] / BACKLASH_TORQUE_SCALE))[:, None]
+    # The encoder reads the motor, half the gap ahead of the wheel in the direction of the torque: the
+    # longitudinal rows (−r β̇) see the rate of that lead.
     lead = 0.5 * np.tanh(st.motor_torque / BACKLASH_TORQUE_SCALE)
     violation = np.zeros((len(st.time), 8))
     violation[:, 4:] = -ch.context.sheet.geometry.r * np.gradient(lead, st.cycle_time, axis=0)
-    col = _rolling(ch, violation)
-    return np.column_stack([np.zeros_like(col), col])
+    return _rolling(ch, violation)[:, None]
 
 
 #: 0.3 mrad (1 arcmin) at the gear output: what precision gearboxes are specified at; less is no backlash
-#: of practical consequence (standard planetary gears have 3–6 mrad). The creep is the gap's signature
-#: in the steering steps, but on its own it is a wheel radius' (or any tyre slip's): it is fitted in the
-#: test's base too, and the test is on the gap.
-BACKLASH = Hypothesis("backlash", "", ("creep", "gap"), _backlash_columns,
-                      magnitude=_linear_magnitude(1, "rad", "gear backlash (wheel side)"),
-                      physical=lambda t: t[1] > 0, relevant=3e-4, nuisance=1)
+#: of practical consequence (standard planetary gears have 3–6 mrad).
+BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
+                      magnitude=_linear_magnitude(0, "rad", "gear backlash (wheel side)"),
+                      physical=lambda t: t[0] > 0, relevant=3e-4)
 
 
 #: Tyre/floor friction coefficient the scrub of a toed wheel is taken at (dry rubber on concrete, the

@@ -135,32 +135,3 @@ def test_held_out_shrink_is_reported_from_the_model_and_gated_beyond_the_referen
     assert beyond.shrink.shrink_affected == pytest.approx(plain.shrink.shrink_affected, abs=1e-6)
     assert beyond.shrink.affected == beyond.evaluation.affected == "steer_left/alpha_l"
 
-
-def test_a_nuisance_coefficient_is_free_in_the_tests_base_and_part_of_the_reported_shrink():
-    # Backlash's tyre creep is a wheel radius' signature too: the gap must be tested with the creep
-    # free on both sides of the test, while the shrink of adding the effect counts both.
-    rng = np.random.default_rng(10)
-    t = np.arange(N_ROWS)
-    creep = np.cos(t / 9.0) * 3.0
-    lead = np.sign(np.sin(t / 5.0)) * 3.0
-
-    def hypothesis(nuisance):
-        return Hypothesis("backlash_like", "", ("creep", "gap"), lambda c, _: np.column_stack([c.creep, c.lead]),
-                          magnitude=lambda th, cov, nl, sheet: None, nuisance=nuisance,
-                          physical=lambda th: th[1] > 0)
-
-    def candidate(gap, nuisance):
-        ch = _channel("steer_right/kinematic_fr", rng)
-        ch.creep, ch.lead = creep, lead
-        ch.residual = 1.0 * creep + gap * lead + rng.normal(size=N_ROWS)
-        fit_p, hold_p = _alternating_windows([ch])
-        base = fitting.solve(fit_p, MODEL, None, None, 1)
-        return fitting.fit_hypothesis(fit_p, hold_p, MODEL, hypothesis(nuisance), base, 1, None, {})
-
-    creep_only = candidate(0.0, nuisance=1)
-    assert creep_only.p_value > 1e-3 and abs(creep_only.evaluation.removed) < 30
-    assert candidate(0.0, nuisance=0).p_value < 1e-20           # tested as a whole, the creep alone passes
-    both = candidate(0.5, nuisance=1)
-    assert both.p_value < 1e-20 and both.fit.theta == pytest.approx([1.0, 0.5], abs=0.05)
-    # the test's shrink is the gap's alone; the shrink of adding the effect to the model also has the creep
-    assert both.shrink.shrink_affected > both.evaluation.shrink_affected + 0.2
