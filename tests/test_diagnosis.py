@@ -56,8 +56,11 @@ def test_single_effect_is_ranked_first_with_its_magnitude(suite):
     assert top["ci"][0] <= top["magnitude"] <= top["ci"][1]
     assert top["magnitude"] == pytest.approx(0.88 - 1, abs=0.02)      # factor − 1
     assert top["holdout_shrink"] >= 0.5
-    for key in ("name", "magnitude", "ci", "significant", "holdout_shrink"):
+    for key in ("name", "magnitude", "ci", "significant", "holdout_shrink", "holdout_shrink_beyond_reference"):
         assert all(key in e for e in gap["effects"])
+    # the shrink of adding the effect starts from the model's held-out residual in the same channel
+    before = top["holdout_channels"][top["affected_channel"]]["rms_before"]
+    assert before == pytest.approx(gap["model_holdout_rms"][top["affected_channel"]])
 
 
 def test_tyre_slip_is_named_from_the_rolling_constraints_with_its_cornering_stiffness(suite):
