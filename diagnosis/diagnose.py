@@ -287,12 +287,11 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
-    holdout_rms = {c.name: c.rms_before for c in fitting.evaluate(hp, base, base, cache).channels}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
-                     chans, (fp, hp), base, final, holdout_rms)
+                     chans, (fp, hp), base, final, fitting.holdout_rms(hp, base, cache))
 
 
 #: Effects the paper's parameters can carry: name → {parameter: (coefficient, scale(p, r))}.

@@ -251,6 +251,12 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     return r
 
 
+def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None) -> dict[str, float]:
+    """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit."""
+    return {ch.name: float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
+            for i, (ch, rows) in enumerate(zip(problem.channels, problem.holdout_rows)) if rows.any()}
+
+
 @dataclass
 class ChannelShrink:
     name: str
