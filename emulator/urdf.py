@@ -58,6 +58,9 @@ class BuildPlan:
         rotor_fraction: share of B_w on a separate motor+gear rotor link behind the gear (0: none, the
             gear is rigid and B_w sits on the wheel).
         fixed_links: extra bodies fixed to the chassis.
+        solver_iterations: PyBullet's constraint-solver iterations per physics step. A wheel link that
+            carries only part of B_w (``rotor_fraction`` > 0) needs more for its tyre's friction to
+            converge: at 50 it creeps 1.3 % in its rolling direction when steering at rest.
     """
 
     steering_unit_mass: float
@@ -65,6 +68,7 @@ class BuildPlan:
     wheel_radius: float
     rotor_fraction: float = 0.0
     fixed_links: list[FixedLink] = field(default_factory=list)
+    solver_iterations: int = 50
 
 
 @dataclass(frozen=True)

@@ -118,7 +118,7 @@ class Emulator:
         pb, d = self._pb, self.description
         g, t, bd = d.geometry, d.truth, d.body
         pb.setPhysicsEngineParameter(fixedTimeStep=self.time_step, numSubSteps=0,
-                                     numSolverIterations=50, deterministicOverlappingPairs=1)
+                                     deterministicOverlappingPairs=1)
         pb.setTimeStep(self.time_step)  # before any motor or constraint (DESIGN.md)
         pb.setGravity(0, 0, -GRAVITY)
         plane = pb.createMultiBody(0, pb.createCollisionShape(pybullet.GEOM_PLANE))
@@ -127,6 +127,7 @@ class Emulator:
         for effect in self._effects:
             effect.configure(plan, d)
         self.plan = plan
+        pb.setPhysicsEngineParameter(numSolverIterations=plan.solver_iterations)
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "vehicle.urdf"
             path.write_text(vehicle_urdf(d, plan))

@@ -345,6 +345,21 @@ def test_backlash_delays_the_wheel_after_a_reversal():
     assert encoder[8] < encoder[0] * 0.8  # the motor (encoder) reverses first
 
 
+def test_backlash_wheels_roll_without_creep_when_steering_at_rest():
+    """Steering at rest (mode 1) driven by the left wheels: each wheel rolls on its circle of radius a
+    about the steering axis, r·Δβ = a·Δα, with the gear split into rotor and wheel as without it."""
+    for effects in ({}, {"backlash": {"gap": 0.0}}, {"backlash": {"gap": 0.01}}):
+        with emulator(effects, seed=4) as emu:
+            states = run(emu, [-0.6, 0.6, 0, 0], 1.5)
+        alpha = np.array([[s.alpha[0], s.alpha_rear[0]] for s in states])
+        beta = np.array([s.beta[:2] for s in states])
+        moved = alpha - alpha[0]
+        assert np.min(np.abs(moved[-1])) > 0.1, effects
+        arc = [np.linalg.lstsq(moved[:, [i]], G.r * (beta[:, i] - beta[0, i]), rcond=None)[0][0]
+               for i in range(2)]
+        assert np.abs(arc) == pytest.approx([G.a, G.a], rel=2e-3), effects
+
+
 def test_steering_compliance_rear_deflects_by_transmitted_torque_over_stiffness():
     """Steering at rest driven by the front-left wheel only: the linkage carries the torque the rear
     unit needs; it deflects by that torque / k (the rigid gear constraint's torque, same motion)."""
