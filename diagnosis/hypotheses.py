@@ -26,7 +26,8 @@ torque_constant_error      −H_kᵀB e_j u_j for one drive j                  f
 wheel_radius               (kinematic) predicted rolling angle              r_nominal/r − 1 [-]
 backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
 steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
-                           drag μN·|T|/k of the toed rear wheels
+                           drag μN·|δ| of the toed rear wheels, δ = T/k
+                           through the held joints' stiction play d_c/2
 tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
                            side forces need slip angles F/C_α
 heavy_steering_units       exact point masses at the wheel centres          m_w [kg]
@@ -399,17 +400,56 @@ def _compliance_kinematic(ch: ChannelData) -> np.ndarray:
     return ch.rows(ctx.H[:, 5 + i, side] * coupling * FRONT_SIGN[i])[:, None]
 
 
+#: rad/s: a side's steering joints count as held (static friction engaged) below this filtered speed. A
+#: held front unit still wanders with a soft linkage's deflection: up to 0.03 rad/s in straight driving and
+#: rotation at 800 N m/rad (0.003 with a rigid one), far below the lane change's steering rates.
+HELD_STEERING_SPEED = 0.05
+
+#: Steps whose scrub drag gets a coefficient s_rot/k of its own. In the rotation the chassis turns about
+#: its centre and the other wheels take up part of a rear wheel's toe: fitted with the true deflection
+#: (emulator runs with the truth recorded), its drag is half the μN|δ| of straight driving and the lane
+#: change, where the toed wheel slides fully.
+ROTATION_STEPS = ("rotation",)
+
+
+def play(x: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """The play (backlash) operator: y follows x only where |x − y| exceeds ``width``, then at that
+    distance; it starts at y = x[0]. (N,), (N,) → (N,), in x's unit; width 0 passes x through."""
+    y = np.empty(len(x))
+    current = float(x[0])
+    for i, (v, w) in enumerate(zip(np.asarray(x, float), np.asarray(width, float))):
+        current = min(max(current, v - w), v + w)
+        y[i] = current
+    return y
+
+
+def _linkage_deflection(ctx) -> np.ndarray:
+    """(N, 2) deflection k·δ of each side's linkage, left then right, N m (δ in rad per unit 1/k).
+
+    Where the steering moves, the two joints' Coulomb friction acts mirrored and cancels in the linkage:
+    k·δ = T, the torque :func:`_linkage_torque` of the tyres' longitudinal forces at the mode's angles.
+    Where the side's steering is held, each joint's static friction takes up to d_c/2 of the torque
+    before the linkage deflects further: k·δ follows T through a play of that width (d_cl, d_cr the
+    model's)."""
+    st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
+    H1 = kinematics.H(1, model_alpha(st, g), g)
+    T = _linkage_torque(H1, _tyre_torque(ctx))
+    out = np.empty_like(T)
+    for side, d_c in ((0, p[2]), (1, p[5])):
+        held = np.abs(st.qd[:, 3 + side]) <= HELD_STEERING_SPEED
+        out[:, side] = play(T[:, side], np.where(held, abs(d_c) / 2, 0.0))
+    return out
+
+
 def _compliance_scrub(ch: ChannelData) -> np.ndarray:
     """Drag of the rear wheels toed by the linkage's deflection, as generalized force per unit 1/k.
 
-    The linkage deflects by δ = T/k under the torque T it carries (:func:`_linkage_torque` of the
-    tyres' longitudinal forces, at the mode's angles), which toes the rear wheel by δ away from the
-    mirror of the measured front angle. A toed wheel slides sideways at |v|·δ under the lateral
+    The linkage deflects by δ (:func:`_linkage_deflection`), which toes the rear wheel by δ away from
+    the mirror of the measured front angle. A toed wheel slides sideways at |v|·δ under the lateral
     friction μN, and the component μN|δ| of that force along its travel is a drag."""
     ctx = ch.context
     st, g, p = ctx.st, ctx.sheet.geometry, ctx.p
-    H1 = kinematics.H(1, model_alpha(st, g), g)
-    deflection = np.abs(_linkage_torque(H1, _tyre_torque(ctx)))   # × 1/k, rad
+    deflection = np.abs(_linkage_deflection(ctx))   # × 1/k, rad
     load = SCRUB_FRICTION * p[6] * GRAVITY / 4
     Q = np.zeros((len(st.time), 9))
     Q[:, [6, 8]] = load * g.r * deflection * np.tanh(st.qd_coulomb[:, [6, 8]] / EPS_SIGN)
@@ -417,20 +457,28 @@ def _compliance_scrub(ch: ChannelData) -> np.ndarray:
 
 
 def _compliance_columns(ch: ChannelData, _):
+    """Columns (1/k, s_rot/k): the rear wheels' rolling with the deflection (kinematic channels) and the
+    scrub drag of driving straight and of the lane change carry 1/k; the rotation's scrub has its own
+    coefficient (:data:`STEERING_COMPLIANCE`)."""
     if ch.kind == "kinematic":
-        return _compliance_kinematic(ch)
-    if ch.kind == "torque":
-        return _compliance_scrub(ch)
-    return None
+        column = _compliance_kinematic(ch)
+    elif ch.kind == "torque":
+        column = _compliance_scrub(ch)
+    else:
+        return None
+    zero = np.zeros_like(column)
+    return np.hstack([zero, column] if ch.context.step in ROTATION_STEPS else [column, zero])
 
 
 #: 1e-4 rad/(N m) (a linkage of 10 kN m/rad): the campaign's typical tyre forces (≈ 250 N, a·F ≈ 20 N m
 #: on the linkage) then toe a rear wheel by < 2 mrad, within an ordinary wheel-alignment tolerance (±0.1°).
+#: 1/k: the straight and lane-change drag and the kinematic channels; s_rot/k, 0 ≤ s_rot ≤ 1: the
+#: rotation's share of full sliding (more than full sliding is no scrub of this linkage).
 STEERING_COMPLIANCE = Hypothesis(
-    "steering_compliance", "", ("compliance",), _compliance_columns,
+    "steering_compliance", "", ("compliance", "compliance_rotation"), _compliance_columns,
     magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k "
                                 f"(scrub taken at μ = {SCRUB_FRICTION})"),
-    physical=lambda t: t[0] > 0, relevant=1e-4)
+    physical=lambda t: t[0] > 0 and 0 <= t[1] <= t[0], relevant=1e-4)
 
 
 # --- tyre slip ---------------------------------------------------------------------------------------

@@ -1,12 +1,13 @@
 """The steering-compliance hypothesis in the torque channels: the scrub drag of rear wheels toed by a
-compliant front/rear linkage, checked against the hand derivation on steady straight driving."""
+compliant front/rear linkage, checked against the hand derivation on steady straight driving; the held
+joints' static friction as a play in the deflection; the rotation's coefficient of its own."""
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from diagnosis.channels import ChannelData, StepContext
-from diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE
+from diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE, play, plausible
 from ident import filtering, kinematics
 from ident.datasheet import DataSheet
 
@@ -18,19 +19,23 @@ TS = SHEET.drive.cycle_time
 P = np.array([0.3, 4.0, 12.0, 0.3, 4.0, 12.0, 840.0, 286.0, 0.74, 3.96, 0.12])
 
 
-def _straight_channel(v: float, motor_torque: np.ndarray, n: int = 1500) -> ChannelData:
-    """The torque channel of a mode-3 step at constant speed v [m/s] with the given (4,) motor torques."""
+def _straight_channel(v: float, motor_torque: np.ndarray, n: int = 1500, alpha_dot: float = 0.0,
+                      step: str = "straight") -> ChannelData:
+    """The torque channel of a mode-3 step at constant speed v [m/s] with the given (4,) or (n, 4) motor
+    torques; ``alpha_dot`` [rad/s] is what the steering speed signals read (0: the steering is held)."""
     alpha = np.broadcast_to(kinematics.mode_alpha(3, G), (n, 2))
     H = kinematics.H(3, alpha, G)
     qd = H[:, :, 0] * v
-    st = SimpleNamespace(k=3, time=np.arange(n) * TS, q=np.zeros((n, 9)), qd=qd, qdd=np.zeros((n, 9)),
-                         qd_coulomb=qd.copy(), motor_torque=np.tile(motor_torque, (n, 1)),
+    qd[:, 3:5] = alpha_dot
+    st = SimpleNamespace(k=3, step=step, time=np.arange(n) * TS, q=np.zeros((n, 9)), qd=qd,
+                         qdd=np.zeros((n, 9)), qd_coulomb=qd.copy(),
+                         motor_torque=np.broadcast_to(motor_torque, (n, 4)).copy(),
                          cycle_time=TS, omega_g=filtering.OMEGA_G)
     keep = np.ones(n, dtype=bool)
     ctx = StepContext(st, SHEET, P, np.zeros((n, 3)), H, np.zeros((n, 2)), keep,
                       np.zeros(n, dtype=bool))
     zeros = np.zeros(n)
-    return ChannelData("straight/x_ch", "torque", "N", 0, zeros, np.zeros((n, 10)), zeros, qd[:, 0], zeros,
+    return ChannelData(f"{step}/x_ch", "torque", "N", 0, zeros, np.zeros((n, 10)), zeros, qd[:, 0], zeros,
                        keep, ctx)
 
 
@@ -54,8 +59,40 @@ def test_scrub_column_is_the_drag_of_the_rear_wheels_toed_by_the_linkage(v, moto
     assert np.all(np.sign(column[middle]) == np.sign(v))
 
 
+def test_play_follows_only_beyond_its_width():
+    x = np.array([0.0, 1.0, 2.5, 3.0, 2.0, 0.5, -1.0, -0.5])
+    assert np.allclose(play(x, np.full(8, 1.0)), [0.0, 0.0, 1.5, 2.0, 2.0, 1.5, 0.0, 0.0])
+    assert np.allclose(play(x, np.zeros(8)), x)
+
+
+def test_held_steering_joints_take_the_torque_within_their_static_friction():
+    """A linkage torque T wandering by ±2.5 N m is held by the stuck joints' static friction
+    (d_c/2 = 6 N m each side): the deflection, and so the drag, stays at its first value; while the
+    steering moves, the joints' friction cancels in the linkage and the drag follows |T|."""
+    n, v = 1500, 0.5
+    base = np.array([-0.8, 0.9, 0.7, -0.6])
+    torque = np.tile(base, (n, 1))
+    torque[:, 0] += 0.25 * np.sin(2 * np.pi * 1.5 * np.arange(n) * TS)   # ±2.5 N m on the left linkage
+    middle = slice(300, -300)
+    held = STEERING_COMPLIANCE.columns(_straight_channel(v, torque), None)[:, 0]
+    steady = STEERING_COMPLIANCE.columns(_straight_channel(v, base), None)[:, 0]
+    assert np.allclose(held[middle], steady[middle], rtol=1e-3)
+    moving = STEERING_COMPLIANCE.columns(_straight_channel(v, torque, alpha_dot=0.5), None)[:, 0]
+    assert np.ptp(moving[middle]) > 0.5 * SCRUB_FRICTION * P[6] * GRAVITY / 4 * 2.0
+
+
+def test_the_rotation_has_a_coefficient_of_its_own_at_most_full_sliding():
+    base = np.array([-0.8, 0.9, 0.7, -0.6])
+    straight = STEERING_COMPLIANCE.columns(_straight_channel(0.5, base), None)
+    rotation = STEERING_COMPLIANCE.columns(_straight_channel(0.5, base, step="rotation"), None)
+    assert np.all(straight[:, 1] == 0) and np.any(straight[:, 0] != 0)
+    assert np.all(rotation[:, 0] == 0) and np.allclose(rotation[:, 1], straight[:, 0])
+    assert STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-4]))
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 8e-4]))   # more drag than a sliding wheel
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, -1e-4]))
+
+
 def test_a_stiffer_linkage_than_alignment_tolerance_is_not_relevant():
-    assert not STEERING_COMPLIANCE.physical(np.array([-1e-4]))
-    from diagnosis.hypotheses import plausible
-    assert not plausible(STEERING_COMPLIANCE, np.array([5e-5]))   # 20 kN m/rad
-    assert plausible(STEERING_COMPLIANCE, np.array([5e-4]))       # 2 kN m/rad
+    assert not STEERING_COMPLIANCE.physical(np.array([-1e-4, 0.0]))
+    assert not plausible(STEERING_COMPLIANCE, np.array([5e-5, 0.0]))   # 20 kN m/rad
+    assert plausible(STEERING_COMPLIANCE, np.array([5e-4, 0.0]))       # 2 kN m/rad
