@@ -117,8 +117,11 @@ class Emulator:
     def _build(self) -> None:
         pb, d = self._pb, self.description
         g, t, bd = d.geometry, d.truth, d.body
+        # Box friction (rolling and axle directions clamped at μN each) instead of PyBullet's implicit
+        # cone: with the cone a wheel sliding sideways also slips along its rolling direction, 15–40 mm/s
+        # at 0.8 m/s for a 10–20 mrad toe, where Coulomb's cone gives ≈ 1 mm/s (docs/effects.md).
         pb.setPhysicsEngineParameter(fixedTimeStep=self.time_step, numSubSteps=0,
-                                     deterministicOverlappingPairs=1)
+                                     deterministicOverlappingPairs=1, enableConeFriction=0)
         pb.setTimeStep(self.time_step)  # before any motor or constraint (DESIGN.md)
         pb.setGravity(0, 0, -GRAVITY)
         plane = pb.createMultiBody(0, pb.createCollisionShape(pybullet.GEOM_PLANE))

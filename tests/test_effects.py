@@ -384,6 +384,29 @@ def test_steering_compliance_rear_deflects_by_transmitted_torque_over_stiffness(
 
 
 # -- tyres -------------------------------------------------------------------------------------------------
+def test_a_wheel_sliding_sideways_keeps_rolling_along_its_heading():
+    """The left side steered by 20 mrad (front toed in, rear mirrored) and all four wheels driven: the
+    chassis turns and the unsteered right wheels slide sideways at v_lat. Under Coulomb's friction cone a
+    sliding wheel slips along its heading by |v_lat|·F_x/√((μN)² − F_x²) at most; PyBullet's implicit cone
+    friction made it 15–40 mm/s, which the emulator's box friction does not."""
+    u = 0.8
+    with emulator({}, seed=3, initial_alpha=(0.02, 0.0)) as emu:
+        states = run(emu, [u] * 4, 1.5)
+    last = states[-round(0.5 / DR.cycle_time):]
+    xd, yd, wd = np.mean([s.velocity for s in last], axis=0)
+    beta_dot = np.mean([s.beta_dot for s in last], axis=0)
+    assert wd > 0.01  # the chassis turns, so the right wheels slide sideways
+    f_x = DR.i_G * u / G.r
+    mu_n = D.body.tire_friction * T.m_ch * 9.81 / 4
+    for i, x in ((2, G.l / 2), (3, -G.l / 2)):
+        y = -(G.b / 2 + G.a)
+        v_lat = yd + wd * x
+        slip = G.r * beta_dot[i] - (xd - wd * y)
+        coulomb = abs(v_lat) * f_x / math.sqrt(mu_n**2 - f_x**2)
+        assert abs(v_lat) > 2e-3
+        assert abs(slip) < coulomb + 0.5e-3, (i, slip, coulomb)
+
+
 def steered_circle(effects, alpha_v=0.3, speed=1.0, seconds=2.5):
     """Mode 2 at α_v with a steering hold through differential torques: mean chassis velocities
     (ẋ, ẏ, γ̇) over the last 0.5 s."""

@@ -1,11 +1,12 @@
 """Tyre lateral slip: the wheels carry side force through a slip angle instead of rigid contact.
 
 The wheel/floor contact keeps PyBullet's friction along the rolling direction but (almost) none along the
-axle (anisotropic friction, with box instead of cone friction so the directions stay independent). Each physics step every loaded wheel gets the lateral tyre force
-F = −C_α·atan(v_lat / max(|v_long|, v_min)), saturated at μ·N, at its contact point, from the contact
-point's velocity across (v_lat) and along (v_long) the wheel and its contact normal force N. The vehicle
-drifts and under-steers in a steered circle by the slip angles F/C_α the side forces need; straight
-driving and steering at rest need no side force and are unaffected."""
+axle (anisotropic friction; the emulator's box friction keeps the directions independent). Each physics
+step every loaded wheel gets the lateral tyre force F = −C_α·atan(v_lat / max(|v_long|, v_min)),
+saturated at μ·N, at its contact point, from the contact point's velocity across (v_lat) and along
+(v_long) the wheel and its contact normal force N. The vehicle drifts and under-steers in a steered
+circle by the slip angles F/C_α the side forces need; straight driving and steering at rest need no side
+force and are unaffected."""
 from __future__ import annotations
 
 import math
@@ -27,10 +28,9 @@ class TireSlip(Effect):
     }
 
     def attach(self, plant: Plant) -> None:
-        # Cone friction couples the two friction rows in impulse space; with the axle row scaled down its
-        # impulses grow by 1/scale and starve the rolling direction (no traction at α = 0). Box friction
-        # keeps them independent.
-        plant.pb.setPhysicsEngineParameter(enableConeFriction=0)
+        # Relies on the emulator's box friction: cone friction couples the two friction rows in impulse
+        # space, and with the axle row scaled down its impulses would grow by 1/scale and starve the
+        # rolling direction (no traction at α = 0).
         for j in plant.wheel:
             plant.pb.changeDynamics(plant.body, j, anisotropicFriction=[1.0, LATERAL_FRICTION_SCALE, 1.0])
         self._link = {j: i for i, j in enumerate(plant.wheel)}
