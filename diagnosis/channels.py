@@ -279,9 +279,44 @@ def _rolling_channels(ctx: StepContext) -> list[ChannelData]:
     velocity = kinematics.sdot_from_qdot(ctx.k, st.q[:, 3:5], st.qd, ctx.sheet.geometry)[keep, 0]
     acceleration = kinematics.sdot_from_qdot(ctx.k, st.q[:, 3:5], st.qdd, ctx.sheet.geometry)[keep, 0]
     free = ~ctx.traction_limited[keep]
+    misaligned = _misalignment_sliding(ctx)[keep]
     return [ChannelData(f"{ctx.step}/rolling_{m + 1}", "rolling", "m", m, y[:, m], np.zeros((len(y), 0)),
-                        np.zeros(len(y)), velocity, acceleration, free, ctx, _segments(free))
+                        np.zeros(len(y)), velocity, acceleration, free, ctx,
+                        np.hstack([_segments(free), misaligned[:, m, :]]))
             for m in range(y.shape[1])]
+
+
+#: rad: the steering-angle step of the finite difference in :func:`_misalignment_sliding`.
+MISALIGNMENT_STEP = 1e-4
+#: Steering sensor LSBs (2π/2¹⁴ rad each) by which a side's median angle must miss the mode's angle for
+#: the step's rolling channels to get that side's misalignment column: 4 LSB ≈ 1.5 mrad. Steering
+#: stiction leaves 1.9–4.2 mrad (Stribeck, breakaway twice d_c); every other effect and the ideal vehicle
+#: at most 2 LSB.
+MISALIGNMENT_LSB = 4
+
+
+def _misalignment_sliding(ctx: StepContext) -> np.ndarray:
+    """(N, 5, m) the redundant constraints' integrated violation, m, per radian by which the steering of
+    a side turns the wheels off the chassis twist's rolling directions, for each side (left, right) whose
+    measured angle misses the mode's by ``MISALIGNMENT_LSB`` or more: m = 0, 1 or 2.
+
+    Wheels held a few mrad off the mode's angles (e.g. by steering stiction short of the target) share
+    no instantaneous centre of rotation: as the chassis turns they slide sideways at their speed times
+    the offset, whatever their tyres. That sliding is a nuisance of the step, not an effect of the
+    vehicle, and how it splits among the wheels depends on their friction: its coefficients are free per
+    channel. Where the sensor shows no offset it is left out, since a tyre's slip angle under a steady
+    side force looks the same."""
+    st, g, rc = ctx.st, ctx.sheet.geometry, ctx.rolling
+    lsb = 2 * np.pi / 2 ** ctx.sheet.drive.steering_sensor_bits
+    offset = np.median(st.q[ctx.keep, 3:5], axis=0) - kinematics.mode_alpha(st.k, g)
+    sides = [side for side in range(2) if abs(offset[side]) >= MISALIGNMENT_LSB * lsb]
+    out = np.empty((len(st.time), rc.basis.shape[1], len(sides)))
+    for column, side in enumerate(sides):
+        turned = st.q[:, 3:5].copy()
+        turned[:, side] += MISALIGNMENT_STEP
+        dA = (kinematics.constraint_matrix(turned, g)[:, :, :3] - rc.A[:, :, :3]) / MISALIGNMENT_STEP
+        out[:, :, column] = rc.integrate(np.einsum("nij,nj->ni", dA, st.qd[:, :3]))
+    return out
 
 
 def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:

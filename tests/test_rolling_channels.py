@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from diagnosis.channels import rolling_constraints
+from diagnosis.channels import _misalignment_sliding, rolling_constraints
 from ident import kinematics
 from ident.datasheet import DataSheet
 
@@ -49,3 +49,47 @@ def test_rolling_without_slip_leaves_nothing_and_a_lateral_slip_does():
     assert np.allclose(drift[-1], rc.basis.T @ violation[0] * duration)
     # most of it is redundant: the wheels' rolling says the chassis did not move sideways
     assert np.linalg.norm(drift[-1]) > 0.5 * 0.01 * duration
+
+
+def _misaligned_rotation(offset):
+    """Mode-4 step with each side's steering ``offset`` (left, right) rad off the mode's angles: the wheels
+    share no centre of rotation, so the chassis turns about the point that least-squares their side
+    slip while every wheel rolls along its heading and slides across it."""
+    alpha = kinematics.mode_alpha(4, G) + np.asarray(offset)
+    st = _rotation(alpha=alpha)
+    lateral = kinematics.constraint_matrix(alpha[None, :], G)[0, :4, :3]
+    st.qd[:, :2] = -np.outer(st.qd[:, 2], np.linalg.lstsq(lateral[:, :2], lateral[:, 2], rcond=None)[0])
+    A = kinematics.constraint_matrix(st.q[:, 3:5], G)
+    st.qd[:, 5:9] = -np.einsum("nij,nj->ni", A[:, 4:8, :3], st.qd[:, :3]) / np.diagonal(A[:, 4:8, 5:9], axis1=1,
+                                                                                        axis2=2)
+    st.time = np.arange(len(st.q)) * TS
+    return st
+
+
+def _context(st):
+    return SimpleNamespace(st=st, sheet=SHEET, rolling=rolling_constraints(st, SHEET),
+                           keep=np.ones(len(st.q), dtype=bool))
+
+
+def test_misaligned_steering_slides_in_the_rolling_channels_and_its_column_holds_it():
+    """3 mrad of right-side steering offset (8 sensor LSB) makes the wheels slide sideways as the chassis
+    turns: the redundant constraints move by a tenth of a millimetre, all of it in the misalignment
+    column."""
+    st = _misaligned_rotation([0.0, 3e-3])
+    ctx = _context(st)
+    rc = ctx.rolling
+    y = rc.integrate(np.einsum("nij,nj->ni", rc.A[:, :, 3:], st.qd[:, 3:]))
+    column = _misalignment_sliding(ctx)
+    assert column.shape == (len(y), 5, 1)               # only the right side misses the mode's angle
+    assert np.max(np.abs(y)) > 1e-5                      # m
+    for m in range(5):
+        X = np.column_stack([np.ones(len(y)), column[:, m, 0]])
+        coef, *_ = np.linalg.lstsq(X, y[:, m], rcond=None)
+        assert np.sqrt(np.mean((y[:, m] - X @ coef) ** 2)) < 1e-3 * np.sqrt(np.mean(y[:, m] ** 2)) + 1e-9
+        assert np.std(y[:, m]) > 0.3 * np.sqrt(np.mean(y[:, m] ** 2))  # the constant alone would not
+
+
+def test_steering_within_a_few_sensor_lsb_of_the_mode_gets_no_misalignment_column():
+    lsb = 2 * np.pi / 2 ** SHEET.drive.steering_sensor_bits
+    assert _misalignment_sliding(_context(_misaligned_rotation([2 * lsb, -2 * lsb]))).shape[2] == 0
+    assert _misalignment_sliding(_context(_misaligned_rotation([5 * lsb, 5 * lsb]))).shape[2] == 2
