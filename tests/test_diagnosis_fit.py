@@ -1,13 +1,14 @@
 """diagnosis.fit on synthetic channels: the z of a hypothesis' level beyond a reference level is
 calibrated (one-sided 5 % under the null), finds a planted level and sees only the channels it is
 restricted to; held-out confirmation of an effect needs the overall residual not to grow."""
+import math
 from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
 
 from diagnosis import fit as fitting
-from diagnosis.hypotheses import Hypothesis
+from diagnosis.hypotheses import INCLINE, Hypothesis, plausible
 
 N_ROWS = 400
 
@@ -135,3 +136,12 @@ def test_held_out_shrink_is_reported_from_the_model_and_gated_beyond_the_referen
     assert beyond.shrink.shrink_affected == pytest.approx(plain.shrink.shrink_affected, abs=1e-6)
     assert beyond.shrink.affected == beyond.evaluation.affected == "steer_left/alpha_l"
 
+
+
+def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
+    """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
+    flatness tolerance, 2 mrad downhill along world y is an incline."""
+    assert not plausible(INCLINE, np.array([math.sin(0.5e-3), 0.0]))
+    assert plausible(INCLINE, np.array([0.0, math.sin(2e-3)]))
+    assert plausible(INCLINE, np.array([0.8e-3, -0.8e-3]))        # 1.13 mrad
+    assert not plausible(INCLINE, np.array([0.6e-3, -0.6e-3]))    # 0.85 mrad
