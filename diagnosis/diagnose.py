@@ -157,20 +157,33 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z
     ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
     friction, the unsteered steps place it in the wheel joints. Below it the steering variant is, even
     where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
-    friction do not."""
+    friction do not. The same holds when only the wheel variant passes the test of the steering steps
+    and the steering variant confirms on held-out data as well: the steering variant is then reported,
+    with that test's significance. When it does not confirm, the wheel variant stays."""
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
-    if wheels is None or steering is None or not steering.significant:
+    if wheels is None or steering is None or not (steering.significant or wheels.significant):
         return
     z = unsteered_z(wheels.fit.nonlinear)
     if z is None:
         return
     if z < WHEEL_FRICTION_Z:
-        if wheels.significant:
-            wheels.significant = False
-            wheels.notes.append(f"the steering joints' variant is preferred: this one's level in the steps "
-                                f"without steering motion is not beyond the reference run's (z = {z:.1f} "
-                                f"< {WHEEL_FRICTION_Z})")
+        if not wheels.significant:
+            return
+        if not steering.significant:
+            if not (steering.physical and steering.evaluation.confirms(fitting.MIN_SHRINK)):
+                return
+            steering.significant = True
+            steering.notes.append(f"preferred over the wheel joints, whose level in the steps without "
+                                  f"steering motion is not beyond the reference run's (z = {z:.1f}); "
+                                  f"significance from the wheel variant's test of the steering steps "
+                                  f"(p = {wheels.p_value:.1e})")
+        wheels.significant = False
+        wheels.notes.append(f"the steering joints' variant is preferred: this one's level in the steps "
+                            f"without steering motion is not beyond the reference run's (z = {z:.1f} "
+                            f"< {WHEEL_FRICTION_Z})")
+        return
+    if not steering.significant:
         return
     steering.significant = False
     steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "

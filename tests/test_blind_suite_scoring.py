@@ -136,3 +136,24 @@ def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
     _tell_friction_joints_apart([_stribeck("joints=steering", False), _stribeck("joints=wheels", False)],
                                 z_of(3.0))
     assert asked == []
+
+
+def test_wheel_variant_alone_significant_is_placed_in_the_steering_joints_when_unsteered_steps_lack_it():
+    """Only the wheel variant passes the steering steps' test, but the unsteered steps hold no more of it
+    than the reference run: the friction is established, not in the wheel joints -> steering variant,
+    with the wheel variant's p, if that one confirms on held-out data; with z above the bar the wheel
+    variant stays."""
+    from diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    wheels = _stribeck("joints=wheels", True, p_value=5.6e-3)
+    steering = _stribeck("joints=steering", False, p_value=1.2e-2)
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: 0.0)
+    assert steering.significant and not wheels.significant
+    assert "p = 5.6e-03" in steering.notes[0]
+    # the steering variant must itself confirm on held-out data, else the wheel variant stays
+    wheels = _stribeck("joints=wheels", True)
+    steering = _stribeck("joints=steering", False, removed=-3.3)
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: 0.0)
+    assert wheels.significant and not steering.significant and not wheels.notes
+    wheels, steering = _stribeck("joints=wheels", True), _stribeck("joints=steering", False)
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: WHEEL_FRICTION_Z + 0.4)
+    assert wheels.significant and not steering.significant
