@@ -307,9 +307,9 @@ def _misalignment_sliding(ctx: StepContext) -> np.ndarray:
     channel. Where the sensor shows no offset it is left out, since a tyre's slip angle under a steady
     side force looks the same."""
     st, g, rc = ctx.st, ctx.sheet.geometry, ctx.rolling
-    lsb = 2 * np.pi / 2 ** ctx.sheet.drive.steering_sensor_bits
     offset = np.median(st.q[ctx.keep, 3:5], axis=0) - kinematics.mode_alpha(st.k, g)
-    sides = [side for side in range(2) if abs(offset[side]) >= MISALIGNMENT_LSB * lsb]
+    bar = MISALIGNMENT_LSB * ctx.sheet.drive.steering_lsb
+    sides = [side for side in range(2) if abs(offset[side]) >= bar]
     out = np.empty((len(st.time), rc.basis.shape[1], len(sides)))
     for column, side in enumerate(sides):
         turned = st.q[:, 3:5].copy()

@@ -80,7 +80,7 @@ class StepController:
         self._integral_limit = 1.5 * np.array([n.d_cl, n.d_cr]) / (
             self._steer_inertia * self._steer_gains.ki)
         # errors within the steering sensor's quantization are not integrated (no wind-up on an LSB)
-        self._integral_deadband = 1.5 * 2 * np.pi / 2**d.steering_sensor_bits
+        self._integral_deadband = 1.5 * d.steering_lsb
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
         self._warm_up()

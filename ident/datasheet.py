@@ -60,6 +60,11 @@ class Drive:
     steering_sensor_bits: int
     cycle_time: float
 
+    @property
+    def steering_lsb(self) -> float:
+        """One step of the steering sensor, rad: 2π / 2^steering_sensor_bits."""
+        return 2 * math.pi / 2**self.steering_sensor_bits
+
 
 @dataclass(frozen=True)
 class Nominal:

@@ -137,7 +137,6 @@ def test_held_out_shrink_is_reported_from_the_model_and_gated_beyond_the_referen
     assert beyond.shrink.affected == beyond.evaluation.affected == "steer_left/alpha_l"
 
 
-
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""

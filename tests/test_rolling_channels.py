@@ -22,10 +22,15 @@ def _rotation(n=500, alpha=None):
     q[:, 3:5] = alpha
     qd = np.zeros((n, 9))
     qd[:, 2] = omega
+    _roll_wheels(q, qd)
+    return SimpleNamespace(k=4, q=q, qd=qd, cycle_time=TS, time=t)
+
+
+def _roll_wheels(q, qd):
+    """Set each wheel's β̇ so that it rolls along its heading with the chassis twist qd[:, :3]."""
     A = kinematics.constraint_matrix(q[:, 3:5], G)
     # longitudinal rows: A[4+i, :3]·v + A[4+i, 5+i]·β̇_i = 0
     qd[:, 5:9] = -np.einsum("nij,nj->ni", A[:, 4:8, :3], qd[:, :3]) / np.diagonal(A[:, 4:8, 5:9], axis1=1, axis2=2)
-    return SimpleNamespace(k=4, q=q, qd=qd, cycle_time=TS)
 
 
 def test_the_redundant_directions_are_those_no_chassis_twist_reaches():
@@ -59,10 +64,7 @@ def _misaligned_rotation(offset):
     st = _rotation(alpha=alpha)
     lateral = kinematics.constraint_matrix(alpha[None, :], G)[0, :4, :3]
     st.qd[:, :2] = -np.outer(st.qd[:, 2], np.linalg.lstsq(lateral[:, :2], lateral[:, 2], rcond=None)[0])
-    A = kinematics.constraint_matrix(st.q[:, 3:5], G)
-    st.qd[:, 5:9] = -np.einsum("nij,nj->ni", A[:, 4:8, :3], st.qd[:, :3]) / np.diagonal(A[:, 4:8, 5:9], axis1=1,
-                                                                                        axis2=2)
-    st.time = np.arange(len(st.q)) * TS
+    _roll_wheels(st.q, st.qd)
     return st
 
 
@@ -90,6 +92,6 @@ def test_misaligned_steering_slides_in_the_rolling_channels_and_its_column_holds
 
 
 def test_steering_within_a_few_sensor_lsb_of_the_mode_gets_no_misalignment_column():
-    lsb = 2 * np.pi / 2 ** SHEET.drive.steering_sensor_bits
+    lsb = SHEET.drive.steering_lsb
     assert _misalignment_sliding(_context(_misaligned_rotation([2 * lsb, -2 * lsb]))).shape[2] == 0
     assert _misalignment_sliding(_context(_misaligned_rotation([5 * lsb, 5 * lsb]))).shape[2] == 2
