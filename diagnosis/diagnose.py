@@ -142,6 +142,8 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
 
 #: One-sided z (5 %) the wheel joints' Stribeck level must reach in the steps without steering motion
 #: (modes 2–4), beyond the reference run's level there, to be preferred over the steering joints' variant.
+#: The level is fitted on all of those steps' rows: the placement only chooses between two variants
+#: whose significance the steering steps' fit rows established.
 WHEEL_FRICTION_Z = 1.645
 
 
@@ -194,10 +196,14 @@ def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z
                         f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
 
 
-def _unsteered_wheel_z(fp: fitting.Problem, ref_problem: fitting.Problem | None, model, lag: int,
+def _unsteered_wheel_z(all_rows: fitting.Problem, ref_problem: fitting.Problem | None, model, lag: int,
                        cache: dict):
     """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
-    reference run's level in the same steps (beyond 0 without a reference run)."""
+    reference run's level in the same steps (beyond 0 without a reference run).
+
+    ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
+    low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
+    the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.15)."""
     def unsteered(ch):
         return ch.context.k != 1
 
@@ -205,7 +211,7 @@ def _unsteered_wheel_z(fp: fitting.Problem, ref_problem: fitting.Problem | None,
         # the reference run's level at this v_s only (reference_levels would fit the whole grid)
         ref = None if ref_problem is None else fitting.solve(fitting.restrict(ref_problem, unsteered), model,
                                                              STRIBECK_WHEELS, v_s, lag, cache)
-        return fitting.level_z(fitting.restrict(fp, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
+        return fitting.level_z(fitting.restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
                                None if ref is None else ref.theta)
 
     return z
@@ -253,7 +259,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
                               for h in LIBRARY) if c is not None]
-    _tell_friction_joints_apart(candidates, _unsteered_wheel_z(fp, ref_problem, model, lag, cache))
+    all_rows = fp if hold is not None else fitting.make_problem(chans, lag, chans)[0]
+    _tell_friction_joints_apart(candidates, _unsteered_wheel_z(all_rows, ref_problem, model, lag, cache))
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
     first = next((c for c in candidates if c.significant), None)
