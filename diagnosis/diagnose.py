@@ -203,7 +203,7 @@ def _unsteered_wheel_z(all_rows: fitting.Problem, ref_problem: fitting.Problem |
 
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
-    the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.15)."""
+    the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
     def unsteered(ch):
         return ch.context.k != 1
 
