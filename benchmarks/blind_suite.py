@@ -57,14 +57,14 @@ def main(argv=None) -> int:
     summary = write_results(results, args.work / "blind_suite.json")
     table = Table(title="Blind check per effect")
     for col in ("Effect", "Cases", "Top-1", "False positives", "Median held-out shrink", "Min shrink",
-                "Median shrink beyond floor", "Min beyond floor", "Median beyond reference level"):
+                "Median shrink beyond floor", "Min beyond floor", "Median from base fit", "Min from base fit"):
         table.add_column(col, justify="left" if col == "Effect" else "right")
     for name, e in sorted(summary["per_effect"].items()):
         fmt = (lambda v: "–" if v is None else f"{100 * v:.0f} %")
         table.add_row(name, str(e["cases"]), f"{e['top1']}/{e['cases']}", str(e["false_positives"]),
                       fmt(e["median_holdout_shrink"]), fmt(e["min_holdout_shrink"]),
                       fmt(e["median_excess_shrink"]), fmt(e["min_excess_shrink"]),
-                      fmt(e["median_beyond_reference_shrink"]))
+                      fmt(e["median_beyond_base_fit_shrink"]), fmt(e["min_beyond_base_fit_shrink"]))
     console.print(table)
     acc = summary["top1_accuracy"]
     console.print(f"top-1 accuracy {100 * acc:.1f} % over {summary['effect_cases']} effect cases; "

@@ -100,8 +100,10 @@ class Diagnosis:
     problems: tuple = field(repr=False, default=())
     base_fit: fitting.Fit | None = field(repr=False, default=None)
     final_fit: fitting.Fit | None = field(repr=False, default=None)
-    #: channel → held-out RMS of the model (base fit) in the channel's unit
+    #: channel → held-out RMS of the base fit in the channel's unit
     holdout_rms: dict = field(default_factory=dict)
+    #: channel → held-out RMS of the model as identified (base parameters unchanged), same unit
+    model_holdout_rms: dict = field(default_factory=dict)
 
 
 def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels):
@@ -135,7 +137,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
                                     fitting.collinearity(fp, h, cand.fit.nonlinear, cache),
                                     physical, True, ["accepted in forward selection with "
                                                      + ", ".join(c.hypothesis.label for c in accepted)],
-                                    cand.added_to_model)
+                                    cand.added_to_model, cand.from_model)
             best = (sub, cand.fit)
     return best
 
@@ -311,7 +313,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
-                     chans, (fp, hp), base, final, fitting.holdout_rms(hp, base, cache))
+                     chans, (fp, hp), base, final, fitting.holdout_rms(hp, base, cache),
+                     fitting.holdout_rms(hp, fitting.on_model(None, None, np.zeros(0), len(base.delta_p)),
+                                         cache))
 
 
 #: Effects the paper's parameters can carry: name → {parameter: (coefficient, scale(p, r))}.

@@ -297,9 +297,10 @@ class Evaluation:
 
 
 def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
-             rng: np.random.Generator | None = None) -> Evaluation:
-    """Held-out residual before (base fit) and after (extended fit), per channel, with a
-    window-bootstrap 95 % interval for the affected channel's shrinkage."""
+             rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
+    """Held-out residual before (``base``) and after (``ext``), per channel, with a window-bootstrap 95 %
+    interval for the affected channel's shrinkage. ``affected``: that channel, when another
+    evaluation of the same effect has chosen it (default: chosen here, see below)."""
     rng = rng or np.random.default_rng(0)
     out = []
     per_window = {}
@@ -330,7 +331,7 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     top = max(removed.values())
     # (when the effect removes nothing anywhere, every channel is a candidate)
     pool = [c for c in out if top > 0 and removed[c.name] >= 0.1 * top] or out
-    affected = max(pool, key=lambda c: c.shrink)
+    affected = next((c for c in out if c.name == affected), None) or max(pool, key=lambda c: c.shrink)
     wins, before, after = per_window[affected.name]
     ids = np.unique(wins)
     sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])
@@ -341,6 +342,27 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
     lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
     return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)))
+
+
+def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:
+    """The model as identified plus effect ``h`` at coefficients ``theta`` (q,), its base parameters
+    unchanged (δp = 0, ``n_base`` entries): what adding the effect to the model predicts. Only for
+    :func:`evaluate` and :func:`predicted_residual` (no RSS, no covariance)."""
+    theta = np.asarray(theta, dtype=float)
+    return Fit(h, nonlinear, theta, np.zeros((len(theta), len(theta))), np.zeros(n_base), {}, 0.0, 0.0, 0)
+
+
+def added_to_identified(problem: Problem, ext: Fit, tail: int, affected: str,
+                        cache: dict | None = None) -> Evaluation:
+    """Held-out residual of the model as identified (with the already accepted effects, all but the last
+    ``tail`` coefficients of ``ext``) before and after adding the effect at ``ext``'s fitted level, both
+    with the base parameters as identified: the shrink the issue's "before and after adding the effect"
+    asks for. Evaluated in the ``affected`` channel of the comparison from the base fit."""
+    before = ext.theta.copy()
+    before[len(before) - tail:] = 0.0
+    n = len(ext.delta_p)
+    return evaluate(problem, on_model(ext.hypothesis, ext.nonlinear, before, n),
+                    on_model(ext.hypothesis, ext.nonlinear, ext.theta, n), cache, affected=affected)
 
 
 def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
@@ -407,6 +429,12 @@ class Candidate:
     #: is added. ``evaluation`` starts instead from the significance test's base (which ranks and gates):
     #: the level the reference run already has of the hypothesis. None: the two are the same.
     added_to_model: Evaluation | None = None
+    #: Held-out comparison of the model as identified (base parameters unchanged, with the effects
+    #: accepted before this one) and the same model with the effect added at its fitted level, in the
+    #: channel ``shrink`` is evaluated in: the residual before and after adding the effect.
+    #: ``shrink`` starts instead from the base fit, whose base parameters may already have absorbed
+    #: part of an effect collinear with them.
+    from_model: Evaluation | None = None
 
     @property
     def name(self) -> str:
@@ -451,10 +479,13 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1)
     evaluation = evaluate(hold_problem, test_base, best, cache)
     added = None if test_base is base else evaluate(hold_problem, base, best, cache)
+    tail = len(h.parameters) if hold_tail is None else hold_tail
+    from_model = added_to_identified(hold_problem, best, tail, (added or evaluation).affected, cache)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = plausible(h, best.theta)
-    cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical, added_to_model=added)
+    cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical, added_to_model=added,
+                     from_model=from_model)
     if best.theta0 is not None and np.any(best.theta0 != 0):
         cand.notes.append("the model's own run already shows a level "
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")

@@ -54,9 +54,15 @@ def _finite(x):
     return x
 
 
+def added_shrink(c: Candidate):
+    """The held-out before/after of adding the effect to the model as identified (``from_model``; the
+    base fit's comparison for candidates made without it)."""
+    return c.from_model if c.from_model is not None else c.shrink
+
+
 def candidate_json(c: Candidate, rank: int) -> dict:
     m = c.magnitude
-    ev = c.shrink
+    ev = added_shrink(c)
     return {
         "rank": rank,
         "name": c.hypothesis.name,
@@ -69,6 +75,8 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "p_value": c.p_value,
         "holdout_shrink": ev.shrink_affected,
         "holdout_shrink_ci": list(ev.shrink_affected_ci),
+        "holdout_shrink_beyond_base_fit": c.shrink.shrink_affected,
+        "holdout_shrink_beyond_base_fit_ci": list(c.shrink.shrink_affected_ci),
         "holdout_shrink_beyond_reference": c.evaluation.shrink_affected,
         "affected_channel": ev.affected,
         "holdout_removed": c.evaluation.removed,
@@ -86,7 +94,15 @@ def candidate_json(c: Candidate, rank: int) -> dict:
 def gap_dict(d: Diagnosis) -> dict:
     """The content of ``gap.json``: ``effects`` ranked (all candidates, most held-out residual
     removed first; the accepted ones carry ``significant: true``), ``verdict``, ``accepted``,
-    ``where`` and ``simulation``."""
+    ``where`` and ``simulation``.
+
+    An effect's ``holdout_shrink`` is 1 − RMS(after)/RMS(before) on held-out rows of its
+    ``affected_channel``: before, the model as identified (with the effects accepted before it);
+    after, the same model with the effect added at its fitted level (``model_holdout_rms`` holds the
+    model's RMS per channel). ``holdout_shrink_beyond_base_fit`` starts from the base fit instead, whose
+    base parameters may move within their prior and so absorb part of an effect collinear with them
+    (``base_fit_holdout_rms``); ``holdout_shrink_beyond_reference`` from the reference run's level of
+    the hypothesis (what the significance gate uses)."""
     ranked = [candidate_json(c, i + 1) for i, c in enumerate(d.candidates)]
     return _finite({
         "verdict": d.verdict,
@@ -97,7 +113,8 @@ def gap_dict(d: Diagnosis) -> dict:
         "model": d.model_source,
         "data": d.data_source,
         "base_parameter_shift": d.base_delta_p,
-        "model_holdout_rms": d.holdout_rms,
+        "model_holdout_rms": d.model_holdout_rms,
+        "base_fit_holdout_rms": d.holdout_rms,
         "where": d.where,
         "simulation": d.simulation,
     })
@@ -142,7 +159,7 @@ def _figures(d: Diagnosis) -> list[tuple[str, str]]:
     # Which: ranking.
     top = d.candidates[:12]
     fig, ax = plt.subplots(figsize=(8, 0.35 * len(top) + 1))
-    ax.barh([c.hypothesis.label for c in top], [100 * c.shrink.shrink_affected for c in top],
+    ax.barh([c.hypothesis.label for c in top], [100 * added_shrink(c).shrink_affected for c in top],
             color=["tab:green" if c.significant else "tab:gray" for c in top])
     ax.set_xlabel("held-out residual removed in the affected channel [%] (green: significant)")
     ax.invert_yaxis()

@@ -117,7 +117,8 @@ class CaseResult:
     accepted_variants: list[str] = field(default_factory=list)
     ranking: list[str] = field(default_factory=list)
     true_shrink: dict = field(default_factory=dict)
-    holdout_rms: dict = field(default_factory=dict)   # channel → the base model's held-out RMS
+    holdout_rms: dict = field(default_factory=dict)   # channel → the base fit's held-out RMS
+    model_holdout_rms: dict = field(default_factory=dict)  # channel → the model as identified's
     wall_time: float = 0.0
     error: str = ""
 
@@ -194,7 +195,7 @@ def run_campaign(out: Path, effects: dict, seed: int, quick: bool) -> None:
 def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
     """Campaign + blind diagnosis of one case (runs in a worker process or a Ray task)."""
     from diagnosis.diagnose import diagnose_paths
-    from diagnosis.report import write_report
+    from diagnosis.report import added_shrink, write_report
 
     started = time.perf_counter()
     result = CaseResult(case)
@@ -209,14 +210,16 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
         result.accepted_variants = [c.hypothesis.variant for c in d.accepted]
         result.ranking = [c.hypothesis.name for c in d.candidates]
         result.holdout_rms = dict(d.holdout_rms)
+        result.model_holdout_rms = dict(d.model_holdout_rms)
         for name in case.truth:
             want = case.variants.get(name)
             c = next((c for c in d.candidates if c.hypothesis.name == name
                       and (want is None or c.hypothesis.variant == want)), None)
             if c is not None:
-                ev = c.shrink
+                ev, base = added_shrink(c), c.shrink
                 ch = next((s for s in ev.channels if s.name == ev.affected), None)
                 result.true_shrink[name] = {"shrink": ev.shrink_affected,
+                                            "beyond_base_fit": base.shrink_affected,
                                             "beyond_reference": c.evaluation.shrink_affected,
                                             "rms_before": ch.rms_before if ch else None,
                                             "rms_after": ch.rms_after if ch else None,
@@ -270,11 +273,12 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
 
 
 def noise_floor(ideal: list[CaseResult]) -> dict[str, float]:
-    """Per channel, the held-out RMS the reference model leaves on the ideal cases (their quadratic mean):
-    what no effect can remove, since the ideal emulator has none."""
+    """Per channel, the held-out RMS the reference model, as identified, leaves on the ideal cases (their
+    quadratic mean): what no effect can remove, since the ideal emulator has none. Results written before
+    that RMS was recorded give the base fit's instead."""
     sums: dict[str, list[float]] = {}
     for r in ideal:
-        for name, rms in r.holdout_rms.items():
+        for name, rms in (r.model_holdout_rms or r.holdout_rms).items():
             sums.setdefault(name, []).append(rms**2)
     return {name: math.sqrt(sum(v) / len(v)) for name, v in sums.items()}
 
@@ -291,10 +295,12 @@ def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | 
 
 def score(results: list[CaseResult]) -> dict:
     """Top-1 accuracy over effect cases, false positives (ideal and effect cases), two-effect naming and
-    held-out shrinkage per effect once the named effect is added to the model: of the whole residual in
-    the affected channel (``*_holdout_shrink``), of its part beyond the ideal cases' floor
-    (``*_excess_shrink``, when the suite has ideal cases), and from the reference run's level of the
-    hypothesis instead of the model (``median_beyond_reference_shrink``, the significance gate's)."""
+    held-out shrinkage per effect once the named effect is added to the model as identified: of the whole
+    residual in the affected channel (``*_holdout_shrink``) and of its part beyond the ideal cases' floor
+    (``*_excess_shrink``, when the suite has ideal cases); and the same effect's shrinkage from the base
+    fit (``*_beyond_base_fit_shrink``: base parameters moved within their prior first) and from the
+    reference run's level of the hypothesis (``median_beyond_reference_shrink``, the significance
+    gate's)."""
     single = [r for r in results if len(r.case.truth) == 1 and not r.error]
     ideal = [r for r in results if not r.case.truth and not r.error]
     pairs = [r for r in results if len(r.case.truth) > 1 and not r.error]
@@ -302,24 +308,28 @@ def score(results: list[CaseResult]) -> dict:
     per_effect: dict[str, dict] = {}
     for r in single:
         e = per_effect.setdefault(r.case.entry or r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
-                                                                    "shrink": [], "excess": [], "beyond": []})
+                                                                    "shrink": [], "excess": [], "base": [],
+                                                                    "beyond": []})
         e["cases"] += 1
         e["top1"] += int(r.top1)
         e["false_positives"] += len(r.false_positives)
         t = r.true_shrink.get(r.case.truth[0])
         if t is not None:
             e["shrink"].append(t["shrink"])
+            e["base"].append(t.get("beyond_base_fit", t["shrink"]))
             e["beyond"].append(t.get("beyond_reference", t["shrink"]))
             if t["channel"] in floor and t.get("rms_before") is not None:
                 x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
                 if x is not None:
                     e["excess"].append(x)
     for e in per_effect.values():
-        s, x, b = e.pop("shrink"), e.pop("excess"), e.pop("beyond")
+        s, x, bf, b = e.pop("shrink"), e.pop("excess"), e.pop("base"), e.pop("beyond")
         e["median_holdout_shrink"] = float(statistics.median_high(s)) if s else None
         e["min_holdout_shrink"] = float(min(s)) if s else None
         e["median_excess_shrink"] = float(statistics.median_high(x)) if x else None
         e["min_excess_shrink"] = float(min(x)) if x else None
+        e["median_beyond_base_fit_shrink"] = float(statistics.median_high(bf)) if bf else None
+        e["min_beyond_base_fit_shrink"] = float(min(bf)) if bf else None
         e["median_beyond_reference_shrink"] = float(statistics.median_high(b)) if b else None
     return {
         "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,

@@ -27,6 +27,8 @@ def test_the_wrong_instance_of_the_right_effect_is_not_top1():
                                                   "min_holdout_shrink": None,
                                                   "median_excess_shrink": None,
                                                   "min_excess_shrink": None,
+                                                  "median_beyond_base_fit_shrink": None,
+                                                  "min_beyond_base_fit_shrink": None,
                                                   "median_beyond_reference_shrink": None}
 
 
@@ -38,17 +40,24 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
     assert excess_shrink(5.0, 3.0, 3.0) == pytest.approx(1.0)
     assert excess_shrink(5.0, 2.9, 3.0) == pytest.approx(1.0)     # below the floor: all of it removed
     assert excess_shrink(2.9, 2.5, 3.0) is None                   # nothing above the floor to remove
-    ideal = [CaseResult(Case(f"ideal_s{s}", {}, [], s), holdout_rms={"rotation/gamma_ch": rms})
+    # the floor is the model as identified's held-out RMS on the ideal cases (the base fit's in results
+    # written before that was recorded)
+    ideal = [CaseResult(Case(f"ideal_s{s}", {}, [], s), holdout_rms={"rotation/gamma_ch": 0.5 * rms},
+                        model_holdout_rms={"rotation/gamma_ch": rms})
              for s, rms in ((1, 3.0), (2, 4.0))]
     assert noise_floor(ideal) == {"rotation/gamma_ch": pytest.approx(np.sqrt(12.5))}
+    older = [CaseResult(Case("ideal_s1", {}, [], 1), holdout_rms={"rotation/gamma_ch": 2.0})]
+    assert noise_floor(older) == {"rotation/gamma_ch": pytest.approx(2.0)}
     heavy = CaseResult(Case("heavy_steering_units_high_s1", {}, ["heavy_steering_units"], 1, "high",
                             "heavy_steering_units"), accepted=["heavy_steering_units"], accepted_variants=[""],
                        true_shrink={"heavy_steering_units": {"shrink": 0.2, "channel": "rotation/gamma_ch",
                                                              "rms_before": 5.0, "rms_after": 4.0,
+                                                             "beyond_base_fit": 0.12,
                                                              "beyond_reference": 0.15}})
     e = score(ideal + [heavy])["per_effect"]["heavy_steering_units"]
     assert e["median_holdout_shrink"] == 0.2
     assert e["median_beyond_reference_shrink"] == 0.15
+    assert e["median_beyond_base_fit_shrink"] == e["min_beyond_base_fit_shrink"] == 0.12
     assert e["median_excess_shrink"] == pytest.approx(1 - np.sqrt((16 - 12.5) / (25 - 12.5)))
     assert score([heavy])["per_effect"]["heavy_steering_units"]["median_excess_shrink"] is None
 

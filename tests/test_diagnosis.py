@@ -56,11 +56,15 @@ def test_single_effect_is_ranked_first_with_its_magnitude(suite):
     assert top["ci"][0] <= top["magnitude"] <= top["ci"][1]
     assert top["magnitude"] == pytest.approx(0.88 - 1, abs=0.02)      # factor − 1
     assert top["holdout_shrink"] >= 0.5
-    for key in ("name", "magnitude", "ci", "significant", "holdout_shrink", "holdout_shrink_beyond_reference"):
+    for key in ("name", "magnitude", "ci", "significant", "holdout_shrink", "holdout_shrink_beyond_base_fit",
+                "holdout_shrink_beyond_reference"):
         assert all(key in e for e in gap["effects"])
-    # the shrink of adding the effect starts from the model's held-out residual in the same channel
+    # the shrink of adding the effect starts from the model as identified's held-out residual in the
+    # same channel; the base fit, with the base parameters moved within their prior, leaves less there
     before = top["holdout_channels"][top["affected_channel"]]["rms_before"]
     assert before == pytest.approx(gap["model_holdout_rms"][top["affected_channel"]])
+    assert gap["base_fit_holdout_rms"][top["affected_channel"]] < before
+    assert top["holdout_shrink_beyond_base_fit"] >= 0.5
 
 
 def test_tyre_slip_is_named_from_the_rolling_constraints_with_its_cornering_stiffness(suite):
@@ -93,7 +97,8 @@ def test_score_counts_top1_and_false_positives(suite):
     assert s["pairs_both_named"] == 1
     # the ideal case sets each channel's noise floor; the faulty drive's residual lies well above it
     assert set(results["ideal"].holdout_rms) >= {"straight/x_ch", "rotation/gamma_ch"}
-    assert s["noise_floor"]["rotation/gamma_ch"] == pytest.approx(results["ideal"].holdout_rms["rotation/gamma_ch"])
+    assert s["noise_floor"]["rotation/gamma_ch"] == pytest.approx(
+        results["ideal"].model_holdout_rms["rotation/gamma_ch"])
     torque = s["per_effect"]["torque_constant_error"]
     assert torque["median_excess_shrink"] >= torque["median_holdout_shrink"] >= 0.5
 

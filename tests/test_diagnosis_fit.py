@@ -137,6 +137,52 @@ def test_held_out_shrink_is_reported_from_the_model_and_gated_beyond_the_referen
     assert beyond.shrink.affected == beyond.evaluation.affected == "steer_left/alpha_l"
 
 
+def test_the_shrink_of_adding_an_effect_starts_from_the_model_as_identified():
+    # An effect half collinear with a base column whose prior lets the base fit take part of it. The
+    # base fit's comparison credits the effect only with what the base could not take; adding it to the
+    # model as identified (δp = 0) removes its whole column from the residual.
+    rng = np.random.default_rng(11)
+    ch = _channel("rotation/gamma_ch", rng)
+    ch.phi = ch.base[:, 7] + rng.normal(size=N_ROWS)
+    noise = rng.normal(size=N_ROWS)
+    ch.residual = 2.0 * ch.phi + noise
+    fit_p, hold_p = _alternating_windows([ch])
+    loose = NS(std_vector=np.full(10, 1.0), p1=np.full(10, 300.0))
+    base = fitting.solve(fit_p, loose, None, None, 1)
+    level = Hypothesis("level", "", ("c",), lambda c, _: c.phi[:, None], magnitude=lambda t, cov, nl, sheet: None)
+    cand = fitting.fit_hypothesis(fit_p, hold_p, loose, level, base, 1, None, {})
+    held = hold_p.holdout_rows[0]
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    theta = cand.fit.theta[0]
+    assert theta == pytest.approx(2.0, abs=0.15)
+    added = cand.from_model
+    assert added.affected == cand.shrink.affected == "rotation/gamma_ch"
+    assert added.channels[0].rms_before == pytest.approx(rms(ch.residual[held]))
+    assert added.channels[0].rms_after == pytest.approx(rms(ch.residual[held] - theta * ch.phi[held]))
+    assert added.shrink_affected > 0.5
+    # the base fit took a part of it, which the base fit's comparison does not credit to the effect
+    assert cand.shrink.channels[0].rms_before < 0.8 * added.channels[0].rms_before
+    assert cand.shrink.shrink_affected < added.shrink_affected - 0.1
+
+
+def test_the_shrink_of_a_further_effect_starts_from_the_model_with_the_accepted_ones():
+    rng = np.random.default_rng(12)
+    ch = _channel("steer_left/alpha_l", rng)
+    ch.phi2 = rng.normal(size=N_ROWS)
+    ch.residual = 1.5 * ch.phi + 1.0 * ch.phi2 + rng.normal(size=N_ROWS)
+    fit_p, hold_p = _alternating_windows([ch])
+    joint = Hypothesis("joint", "", ("a", "b"), lambda c, _: np.column_stack([c.phi, c.phi2]),
+                       magnitude=lambda t, cov, nl, sheet: None)
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    cand = fitting.fit_hypothesis(fit_p, hold_p, MODEL, joint, base, 1, None, {}, hold_tail=1)
+    a, b = cand.fit.theta
+    held = hold_p.holdout_rows[0]
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    first = ch.residual[held] - a * ch.phi[held]
+    assert cand.from_model.channels[0].rms_before == pytest.approx(rms(first))
+    assert cand.from_model.channels[0].rms_after == pytest.approx(rms(first - b * ch.phi2[held]))
+
+
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""
