@@ -356,8 +356,8 @@ def added_to_identified(problem: Problem, ext: Fit, tail: int, affected: str,
                         cache: dict | None = None) -> Evaluation:
     """Held-out residual of the model as identified (with the already accepted effects, all but the last
     ``tail`` coefficients of ``ext``) before and after adding the effect at ``ext``'s fitted level, both
-    with the base parameters as identified: the shrink the issue's "before and after adding the effect"
-    asks for. Evaluated in the ``affected`` channel of the comparison from the base fit."""
+    with the base parameters as identified: gap.json's ``holdout_shrink``. Evaluated in the ``affected``
+    channel of the comparison from the base fit."""
     before = ext.theta.copy()
     before[len(before) - tail:] = 0.0
     n = len(ext.delta_p)
