@@ -433,7 +433,7 @@ class Candidate:
     #: accepted before this one) and the same model with the effect added at its fitted level, in the
     #: channel ``shrink`` is evaluated in: the residual before and after adding the effect.
     #: ``shrink`` starts instead from the base fit, whose base parameters may already have absorbed
-    #: part of an effect collinear with them.
+    #: part of an effect collinear with them. Always set by :func:`fit_hypothesis`.
     from_model: Evaluation | None = None
 
     @property

@@ -54,15 +54,9 @@ def _finite(x):
     return x
 
 
-def added_shrink(c: Candidate):
-    """The held-out before/after of adding the effect to the model as identified (``from_model``; the
-    base fit's comparison for candidates made without it)."""
-    return c.from_model if c.from_model is not None else c.shrink
-
-
 def candidate_json(c: Candidate, rank: int) -> dict:
     m = c.magnitude
-    ev = added_shrink(c)
+    ev = c.from_model
     return {
         "rank": rank,
         "name": c.hypothesis.name,
@@ -159,7 +153,7 @@ def _figures(d: Diagnosis) -> list[tuple[str, str]]:
     # Which: ranking.
     top = d.candidates[:12]
     fig, ax = plt.subplots(figsize=(8, 0.35 * len(top) + 1))
-    ax.barh([c.hypothesis.label for c in top], [100 * added_shrink(c).shrink_affected for c in top],
+    ax.barh([c.hypothesis.label for c in top], [100 * c.from_model.shrink_affected for c in top],
             color=["tab:green" if c.significant else "tab:gray" for c in top])
     ax.set_xlabel("held-out residual removed in the affected channel [%] (green: significant)")
     ax.invert_yaxis()

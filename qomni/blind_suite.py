@@ -195,7 +195,7 @@ def run_campaign(out: Path, effects: dict, seed: int, quick: bool) -> None:
 def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
     """Campaign + blind diagnosis of one case (runs in a worker process or a Ray task)."""
     from diagnosis.diagnose import diagnose_paths
-    from diagnosis.report import added_shrink, write_report
+    from diagnosis.report import write_report
 
     started = time.perf_counter()
     result = CaseResult(case)
@@ -216,10 +216,10 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
             c = next((c for c in d.candidates if c.hypothesis.name == name
                       and (want is None or c.hypothesis.variant == want)), None)
             if c is not None:
-                ev, base = added_shrink(c), c.shrink
+                ev = c.from_model
                 ch = next((s for s in ev.channels if s.name == ev.affected), None)
                 result.true_shrink[name] = {"shrink": ev.shrink_affected,
-                                            "beyond_base_fit": base.shrink_affected,
+                                            "beyond_base_fit": c.shrink.shrink_affected,
                                             "beyond_reference": c.evaluation.shrink_affected,
                                             "rms_before": ch.rms_before if ch else None,
                                             "rms_after": ch.rms_after if ch else None,

@@ -338,7 +338,7 @@ def diagnose(
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from diagnosis.diagnose import diagnose_paths
-    from diagnosis.report import added_shrink, write_report
+    from diagnosis.report import write_report
 
     d = _guarded(lambda: diagnose_paths(model, data, holdout, simulate=simulate))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
@@ -349,7 +349,7 @@ def diagnose(
         m = c.magnitude
         table.add_row(str(i + 1), c.hypothesis.label, f"{m.value:.4g} {m.unit}",
                       f"[{m.ci[0]:.3g}, {m.ci[1]:.3g}]", f"{c.p_value:.1e}",
-                      f"{100 * added_shrink(c).shrink_affected:.1f} %", f"{100 * c.shrink.shrink_affected:.1f} %",
+                      f"{100 * c.from_model.shrink_affected:.1f} %", f"{100 * c.shrink.shrink_affected:.1f} %",
                       c.shrink.affected,
                       "yes" if c.significant else "no")
     console.print(table)
