@@ -183,6 +183,34 @@ def test_the_shrink_of_a_further_effect_starts_from_the_model_with_the_accepted_
     assert cand.from_model.channels[0].rms_after == pytest.approx(rms(first - b * ch.phi2[held]))
 
 
+def test_the_profile_takes_the_grid_point_the_data_fit_best_whatever_the_reference_holds_there():
+    # The data hold the grid point 1's column; the reference run already holds most of it there and
+    # none of grid point 2's, which shares part of it. Beyond the reference, point 2 removes more; the
+    # likelihood's profile takes point 1 and tests it beyond its own reference level.
+    rng = np.random.default_rng(13)
+    ch = _channel("steer_left/alpha_l", rng)
+    ch.phi = np.sign(np.sin(np.arange(N_ROWS) / 7.0)) * 3.0
+    ch.phi_other = 0.8 * ch.phi + 1.8 * rng.normal(size=N_ROWS)
+    noise = rng.normal(size=N_ROWS)
+    ch.residual = 1.0 * ch.phi + noise
+    fit_p, hold_p = _alternating_windows([ch])
+    profiled = Hypothesis("level", "", ("c",), lambda c, nl: (c.phi if nl == 1 else c.phi_other)[:, None],
+                          grid=(1, 2), magnitude=lambda t, cov, nl, sheet: None)
+    reference = {1: np.array([0.8]), 2: np.array([0.0])}
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    removed_beyond = {}
+    for nl in (1, 2):
+        ext = fitting.solve(fit_p, MODEL, profiled, nl, 1, {}, theta0=reference[nl])
+        held = fitting.solve(fit_p, MODEL, profiled, nl, 1, {}, theta0=reference[nl], held=1)
+        removed_beyond[nl] = held.rss - ext.rss
+    assert removed_beyond[2] > 2 * removed_beyond[1]   # the former criterion's pick
+    cand = fitting.fit_hypothesis(fit_p, hold_p, MODEL, profiled, base, 1, None, {}, reference)
+    assert cand.fit.nonlinear == 1
+    assert cand.fit.theta[0] == pytest.approx(1.0, abs=0.05)
+    assert cand.p_value < 1e-6   # 0.2 beyond the reference's 0.8, ~9 σ
+    assert cand.from_model.shrink_affected == pytest.approx(1 - 1 / math.sqrt(10), abs=0.03)   # 1 − σ/√(9σ² + σ²)
+
+
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""
