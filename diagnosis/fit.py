@@ -376,18 +376,21 @@ def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
 
 
 def collinearity(problem: Problem, h: Hypothesis, nonlinear, cache: dict | None = None) -> dict:
-    """R² of each effect column regressed on the base columns over the fit rows (torque channels), and
-    the base parameters most correlated with it."""
+    """R² of each effect column regressed on the base columns over the weighted fit rows of every
+    channel, and the base parameters most correlated with it. The base columns are zero outside the
+    torque channels: a hypothesis that also acts on kinematic or rolling channels (the wheel radius,
+    whose torque column is a combination of base columns) is separable through them."""
     cols, base = [], []
     for i, ch in enumerate(problem.channels):
         rows = problem.fit_rows[i]
-        if ch.kind != "torque" or not rows.any():
+        if not rows.any():
             continue
         c = cached_columns(h, nonlinear, ch, cache)
         if c is None:
             continue
         cols.append(c[rows] * problem.weights[i])
-        base.append(ch.base[rows] * problem.weights[i])
+        b = ch.base[rows] if ch.kind == "torque" else np.zeros((int(rows.sum()), len(P1_NAMES)))
+        base.append(b * problem.weights[i])
     if not cols:
         return {"r2": 0.0, "correlated_with": [], "separable": True}
     C, B = np.vstack(cols), np.vstack(base)
@@ -501,7 +504,8 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
         cand.notes.append(f"adds held-out residual overall ({-evaluation.removed:.3g} weighted) while it shrinks "
                           f"{evaluation.affected} by {100 * evaluation.shrink_affected:.0f} %: not confirmed")
     if not ident_check["separable"]:
-        cand.notes.append("columns nearly collinear with " + ", ".join(ident_check["correlated_with"])
+        cand.notes.append("columns nearly collinear with "
+                          + (", ".join(ident_check["correlated_with"]) or "the base columns together")
                           + ": separable only through the base model's uncertainty")
     return cand
 

@@ -211,6 +211,28 @@ def test_the_profile_takes_the_grid_point_the_data_fit_best_whatever_the_referen
     assert cand.from_model.shrink_affected == pytest.approx(1 - 1 / math.sqrt(10), abs=0.03)   # 1 − σ/√(9σ² + σ²)
 
 
+def test_a_hypothesis_whose_torque_column_the_base_spans_is_separable_through_its_kinematic_rows():
+    # The wheel radius' torque column is a combination of base columns (R² = 1 there); its kinematic
+    # rows, where the model has no parameter, make it identifiable.
+    rng = np.random.default_rng(14)
+    torque = _channel("straight/x_ch", rng)
+    kinematic = NS(name="steer_left/kinematic_fl", kind="kinematic", base=np.zeros((N_ROWS, 0)),
+                   residual=rng.normal(size=N_ROWS), nuisance=np.zeros((N_ROWS, 0)),
+                   fitted=np.ones(N_ROWS, bool), time=torque.time, context=NS(k=1))
+    mix = torque.base[:, 6] + 0.5 * torque.base[:, 7]
+
+    def columns(ch, _):
+        return (mix if ch.kind == "torque" else np.linspace(-1, 1, N_ROWS))[:, None]
+
+    scale = Hypothesis("scale", "", ("eps",), columns)
+    torque_only = Hypothesis("scale", "", ("eps",), lambda ch, _: columns(ch, _) if ch.kind == "torque" else None)
+    both = fitting.collinearity(_problem([torque, kinematic]), scale, None)
+    alone = fitting.collinearity(_problem([torque, kinematic]), torque_only, None)
+    assert alone["r2"] == pytest.approx(1.0) and not alone["separable"]
+    assert alone["correlated_with"] == []   # no single base column: the note then names them together
+    assert both["r2"] < 0.9 and both["separable"]
+
+
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""
