@@ -109,7 +109,34 @@ class Diagnosis:
     model_holdout_rms: dict = field(default_factory=dict)
 
 
-def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels):
+#: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
+#: accepted when what it removes (RMS, the channel's unit) is this many times the residual the model
+#: leaves on its own run in that channel: a first effect whose hypothesis leaves most of a channel's
+#: residual unexplained (a backlash's torque transients) otherwise hides a second one there.
+FLOOR_MULTIPLE_MORE = 4.0
+
+
+def _own_floor(ref_problem) -> dict:
+    """Channel → RMS of the model's residual on its own run (fitted rows), the channel's unit."""
+    if ref_problem is None:
+        return {}
+    return {ch.name: float(np.sqrt(np.mean(ch.residual[rows] ** 2)))
+            for ch, rows in zip(ref_problem.channels, ref_problem.fit_rows) if rows.any()}
+
+
+def _confirms_further(ev: fitting.Evaluation, floor: dict | None) -> bool:
+    """Whether held-out data confirm a further effect: its window-bootstrap interval is above 0, it adds
+    no residual overall, and it removes MIN_SHRINK_MORE of its channel's residual or, where the model's
+    own-run residual ``floor`` (channel → RMS) is known, FLOOR_MULTIPLE_MORE times that floor."""
+    if ev.shrink_affected_ci[0] <= 0 or ev.removed <= 0:
+        return False
+    if ev.confirms(fitting.MIN_SHRINK_MORE):
+        return True
+    own = (floor or {}).get(ev.affected, 0.0)
+    return own > 0 and _removed_rms(ev, ev.affected) >= FLOOR_MULTIPLE_MORE * own
+
+
+def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, floor=None):
     """Re-test the remaining hypotheses with the accepted effects in the model, each beyond its level in
     the reference run (``levels``, as in the first round); return the best significant one or None."""
     base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache)
@@ -131,9 +158,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = cand.physical  # the joint hypothesis checks the added effect's part
-        significant = cand.p_value < fitting.ALPHA_MORE and physical and \
-            cand.evaluation.confirms(fitting.MIN_SHRINK_MORE) and \
-            cand.evaluation.shrink_affected_ci[0] > 0
+        significant = cand.p_value < fitting.ALPHA_MORE and physical and _confirms_further(cand.evaluation, floor)
         if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
             sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
                                     cand.p_value, cand.evaluation,
@@ -273,7 +298,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         accepted.append(first)
         accepted_fits.append(first.fit)
         while len(accepted) < MAX_EFFECTS:
-            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels)
+            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels,
+                                _own_floor(ref_problem))
             if more is None:
                 break
             cand, joint_fit = more

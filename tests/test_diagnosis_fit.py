@@ -233,6 +233,28 @@ def test_a_hypothesis_whose_torque_column_the_base_spans_is_separable_through_it
     assert both["r2"] < 0.9 and both["separable"]
 
 
+def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_against_the_models_own_floor():
+    from diagnosis.diagnose import FLOOR_MULTIPLE_MORE, _confirms_further
+
+    def evaluation(before, after, ci=(0.04, 0.10), removed=10.0):
+        shrink = 1 - after / before
+        return fitting.Evaluation([fitting.ChannelShrink("rotation/gamma_ch", before, after)], 100.0,
+                                  100.0 - removed, "rotation/gamma_ch", shrink, ci)
+
+    floor = {"rotation/gamma_ch": 1.3}   # N m: the model's residual on its own run
+    # a 4 ms delay next to a backlash whose torque transients its hypothesis leaves: 7 %, 8.1 N m removed
+    delay = evaluation(21.28, 19.69)
+    assert delay.shrink_affected < 0.2 and not _confirms_further(delay, None)
+    assert _confirms_further(delay, floor)
+    # the same share of a residual near the floor is not enough
+    small = evaluation(4.0, 3.72)
+    assert small.channels[0].removed_rms < FLOOR_MULTIPLE_MORE * 1.3 and not _confirms_further(small, floor)
+    # a share above 20 % needs no floor; neither rule passes an interval reaching 0 or more residual overall
+    assert _confirms_further(evaluation(4.0, 3.0), None)
+    assert not _confirms_further(evaluation(21.28, 19.69, ci=(-0.01, 0.1)), floor)
+    assert not _confirms_further(evaluation(21.28, 19.69, removed=-1.0), floor)
+
+
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""
