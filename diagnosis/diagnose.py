@@ -297,9 +297,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if first is not None:
         accepted.append(first)
         accepted_fits.append(first.fit)
+        floor = _own_floor(ref_problem)
         while len(accepted) < MAX_EFFECTS:
-            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels,
-                                _own_floor(ref_problem))
+            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, floor)
             if more is None:
                 break
             cand, joint_fit = more
