@@ -28,10 +28,10 @@ import numpy as np
 # this script is named fmu.py: keep its directory off the path so 'fmu' is the package
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
 
-from fmu.cosim import MOTOR_TORQUE, FmuSlave  # noqa: E402
-from fmu.export import export_plant_fmu  # noqa: E402
-from ident.datasheet import DataSheet  # noqa: E402
-from ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave  # noqa: E402
+from qomni.fmu.export import export_plant_fmu  # noqa: E402
+from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
 
 H = 0.002
 TORQUE = 1.5
@@ -40,8 +40,8 @@ PYTHONFMU_SCRIPT = '''
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
 
-from fmu import plant_reference as R
-from ident.datasheet import Geometry
+from qomni.fmu import plant_reference as R
+from qomni.ident.datasheet import Geometry
 
 P = np.array({p})
 

@@ -12,7 +12,7 @@ import argparse
 import math
 import sys
 
-from fmu.accuracy import format_table, predict_windows
+from qomni.fmu.accuracy import format_table, predict_windows
 
 
 def main(argv=None) -> int:

@@ -30,9 +30,9 @@ import can
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hil.busload import bus_load  # noqa: E402
-from hil.hub import Hub, hub_bus_spec  # noqa: E402
-from hil.server import TimingStats  # noqa: E402
+from qomni.hil.busload import bus_load  # noqa: E402
+from qomni.hil.hub import Hub, hub_bus_spec  # noqa: E402
+from qomni.hil.server import TimingStats  # noqa: E402
 
 T_S = 0.002
 QOMNI = [sys.executable, "-c", "from qomni.cli import main; main()"]
@@ -44,7 +44,7 @@ def lockstep_campaign(quick: bool) -> tuple[float, float]:
     spec = importlib.util.spec_from_file_location("qomni_bench_run", ROOT / "benchmarks" / "run.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    from emulator.description import VehicleDescription
+    from qomni.emulator.description import VehicleDescription
 
     return module.campaign(VehicleDescription.load(), quick)
 
@@ -52,7 +52,7 @@ def lockstep_campaign(quick: bool) -> tuple[float, float]:
 # ------------------------------------------------------------------ real-time master and echo responder
 def echo_responder(bus_spec: str, stats_path: str) -> None:
     """Baseline device: answer every SYNC with the emulator's 10 TPDO frames at once; SIGINT ends it."""
-    from hil.bus import open_bus
+    from qomni.hil.bus import open_bus
 
     bus = open_bus(bus_spec)
     stats = TimingStats(T_S, T_S / 2)
@@ -79,7 +79,7 @@ def run_master(spec: str, duration: float) -> dict:
     """Raw real-timed master: NMT reset communication + start, then 4 RPDOs and SYNC every T_s for
     ``duration`` s, deadline-paced. Returns its own counts: SYNCs sent, SYNC sends late by > T_s/2, and
     cycles whose 10 TPDOs were not all in before the next SYNC."""
-    from hil.bus import open_bus
+    from qomni.hil.bus import open_bus
 
     bus = open_bus(spec)
     received: dict[int, set] = {}

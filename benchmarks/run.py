@@ -21,10 +21,10 @@ from pybullet_utils.bullet_client import BulletClient
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from emulator.description import VehicleDescription  # noqa: E402
-from emulator.effects import REGISTRY, EffectSet  # noqa: E402
-from emulator.urdf import vehicle_urdf  # noqa: E402
-from emulator.vehicle import Emulator  # noqa: E402
+from qomni.emulator.description import VehicleDescription  # noqa: E402
+from qomni.emulator.effects import REGISTRY, EffectSet  # noqa: E402
+from qomni.emulator.urdf import vehicle_urdf  # noqa: E402
+from qomni.emulator.vehicle import Emulator  # noqa: E402
 
 
 def best_of(fn, repeats: int = 3) -> float:
@@ -84,8 +84,8 @@ def lockstep_cycle(description: VehicleDescription, cycles: int) -> float:
 
 def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float]:
     """(emulated s, wall s) of a lock-step campaign against the embedded emulator over CAN."""
-    from ident.campaign import Campaign, CampaignSettings
-    from ident.datasheet import DataSheet
+    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.ident.datasheet import DataSheet
     from qomni.embedded import embedded_vehicle
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -31,14 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ident import filtering, kinematics, odometry
-from ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
-from ident.datasheet import DataSheet
-from ident.estimation import IdentificationResult
-from ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
+from qomni.ident import filtering, kinematics, odometry
+from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
+from qomni.ident.datasheet import DataSheet
+from qomni.ident.estimation import IdentificationResult
+from qomni.ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
                             model_alpha, step_blocks, StepSignals)
-from ident.recording import Signals
-from ident.symbolic import WHEELS
+from qomni.ident.recording import Signals
+from qomni.ident.symbolic import WHEELS
 
 #: Steps with rolling channels (constant mode angles: a fixed basis of redundant constraints).
 ROLLING_STEPS = ("rotation",)

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ident.estimation import P1_NAMES, IdentificationResult
-from ident.identify import correlation_lag, load_identification, load_run
+from qomni.ident.estimation import P1_NAMES, IdentificationResult
+from qomni.ident.identify import correlation_lag, load_identification, load_run
 
 from . import fit as fitting
 from . import where as where_

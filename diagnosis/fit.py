@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ident.estimation import P1_NAMES, IdentificationResult
+from qomni.ident.estimation import P1_NAMES, IdentificationResult
 
 from .channels import ChannelData
 from .hypotheses import Hypothesis, Magnitude, plausible

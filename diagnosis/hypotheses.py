@@ -44,9 +44,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ident import filtering, kinematics
-from ident.identify import model_alpha
-from ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
+from qomni.ident import filtering, kinematics
+from qomni.ident.identify import model_alpha
+from qomni.ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
 
 from .channels import ChannelData
 

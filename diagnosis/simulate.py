@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ident import dynamics
+from qomni.ident import dynamics
 
 from .channels import ChannelData
 

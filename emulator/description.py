@@ -91,7 +91,7 @@ class VehicleDescription:
             FileNotFoundError: if ``path`` does not exist.
         """
         if path is None:
-            text = resources.files("emulator").joinpath("data/prototype.toml").read_text()
+            text = resources.files("qomni.emulator").joinpath("data/prototype.toml").read_text()
             source = "prototype (built in)"
         else:
             text = Path(path).read_text()

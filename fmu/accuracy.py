@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ident import odometry
+from qomni.ident import odometry
 
 STEPS = ("steer_left", "steer_right", "straight", "rotation", "lane_change")
 OUTPUTS = ("alpha", "motor_position", "motor_velocity", "position", "heading")
@@ -120,9 +120,9 @@ def predict_windows(run_dir: str | os.PathLike, fmu_path: str | os.PathLike | No
     Raises:
         ident.identify.RunDirectoryError: missing files; ValueError: window too short.
     """
-    from fmu.cosim import PlantVehicle
-    from fmu.export import export_plant_fmu
-    from ident.identify import load_identification, load_run
+    from qomni.fmu.cosim import PlantVehicle
+    from qomni.fmu.export import export_plant_fmu
+    from qomni.ident.identify import load_identification, load_run
 
     signals, sheet, _ = load_run(run_dir)
     ts = sheet.drive.cycle_time

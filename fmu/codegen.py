@@ -43,7 +43,7 @@ from functools import cache
 import sympy as sp
 from sympy.utilities.codegen import C99CodeGen
 
-from ident import symbolic as S
+from qomni.ident import symbolic as S
 
 PREFIX = "qomni_ff"
 """Prefix of every generated C function."""

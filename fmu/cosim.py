@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.measurement import Measurement
-from ident.symbolic import WHEELS
+from qomni.hil.measurement import Measurement
+from qomni.ident.symbolic import WHEELS
 
 MOTOR_TORQUE = tuple(f"motor_torque.{w}" for w in WHEELS)
 MOTOR_POSITION = tuple(f"motor_position.{w}" for w in WHEELS)
@@ -197,8 +197,8 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
         change, as the integral of the plant's x_ch_dot; gamma_ch for rotation), ``cycles`` and
         ``mode_fraction`` (share of the cycles in which the plant's engaged mode k was the step's mode).
     """
-    from ident import kinematics
-    from ident.campaign import Campaign, CampaignSettings
+    from qomni.ident import kinematics
+    from qomni.ident.campaign import Campaign, CampaignSettings
 
     settings = settings or CampaignSettings.quick()
     tmp = None

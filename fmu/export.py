@@ -49,13 +49,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from xml.etree import ElementTree as ET
 
-from ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS
+from qomni.ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS
 
 from . import codegen
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ident.datasheet import DataSheet
-    from ident.estimation import IdentificationResult
+    from qomni.ident.datasheet import DataSheet
+    from qomni.ident.estimation import IdentificationResult
 
 DEFAULT_MODEL_IDENTIFIER = "qomni_feedforward"
 DEFAULT_EPS = 0.01
@@ -400,7 +400,7 @@ def _config_h(variables: list[Variable], identifier: str, token: str, prefix: st
 # --- build ------------------------------------------------------------------------------------------
 def c_source_directory() -> Path:
     """Directory of the packaged C sources (``fmu/c``)."""
-    return Path(str(resources.files("fmu").joinpath("c")))
+    return Path(str(resources.files("qomni.fmu").joinpath("c")))
 
 
 def _tool_name() -> str:
@@ -433,7 +433,7 @@ def compile_binary(source_dir: Path, c_files: list[str], output: Path, compiler:
 
 def _identification_values(identification) -> tuple[dict[str, float], dict[str, float]]:
     if isinstance(identification, (str, os.PathLike)):
-        from ident.identify import load_identification
+        from qomni.ident.identify import load_identification
         identification = load_identification(identification)
     try:
         values = identification.as_dict()

@@ -50,8 +50,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ident import dynamics, kinematics
-from ident.symbolic import PARAMETER_NAMES
+from qomni.ident import dynamics, kinematics
+from qomni.ident.symbolic import PARAMETER_NAMES
 
 N_STATE = 13
 X, Y, GAMMA, ALPHA, ALPHA_V, BETA, SDOT, K = 0, 1, 2, 3, 5, 6, 10, 12

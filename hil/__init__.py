@@ -14,15 +14,15 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "VehicleClient": "hil.client",
-    "CommunicationError": "hil.client",
-    "DriveFaultError": "hil.client",
-    "VehicleServer": "hil.server",
-    "Measurement": "hil.measurement",
-    "VehicleInterface": "hil.measurement",
-    "open_bus": "hil.bus",
-    "parse_bus_spec": "hil.bus",
-    "BusSpec": "hil.bus",
+    "VehicleClient": "qomni.hil.client",
+    "CommunicationError": "qomni.hil.client",
+    "DriveFaultError": "qomni.hil.client",
+    "VehicleServer": "qomni.hil.server",
+    "Measurement": "qomni.hil.measurement",
+    "VehicleInterface": "qomni.hil.measurement",
+    "open_bus": "qomni.hil.bus",
+    "parse_bus_spec": "qomni.hil.bus",
+    "BusSpec": "qomni.hil.bus",
 }
 
 __all__ = sorted(_EXPORTS)

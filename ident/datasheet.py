@@ -112,7 +112,7 @@ class DataSheet:
                 a non-numeric value or an impossible value; the message names file, section and key.
         """
         if path is None:
-            text = resources.files("ident").joinpath(DEFAULT_DATASHEET).read_text(encoding="utf-8")
+            text = resources.files("qomni.ident").joinpath(DEFAULT_DATASHEET).read_text(encoding="utf-8")
             source = "ident/" + DEFAULT_DATASHEET
         else:
             text = Path(path).read_text(encoding="utf-8")

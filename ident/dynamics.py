@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ident import kinematics as _kin
-from ident.symbolic import PARAMETER_NAMES
+from qomni.ident import kinematics as _kin
+from qomni.ident.symbolic import PARAMETER_NAMES
 
 EPS = 0.01
 """rad/s; default tanh smoothing of Coulomb friction (the paper's epsilon)."""

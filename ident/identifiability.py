@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ident import dynamics as _dyn
-from ident import kinematics as _kin
-from ident.symbolic import PARAMETER_NAMES
+from qomni.ident import dynamics as _dyn
+from qomni.ident import kinematics as _kin
+from qomni.ident.symbolic import PARAMETER_NAMES
 
 TABLE1_PRIORITY = ("m_ch", "C_ch", "C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "d_vw", "d_cw", "B_w")
 """Column priority of the QR: among collinear columns the first one listed is kept."""
@@ -163,7 +163,7 @@ def analyse(modes, geometry=None, n_samples: int = 200, seed: int = 0, eps: floa
     stacked, analysed by :func:`independent_parameters`. ``geometry`` defaults to the packaged
     prototype data sheet; ``eps = 0`` uses sign() for Coulomb friction."""
     if geometry is None:
-        from ident.datasheet import DataSheet
+        from qomni.ident.datasheet import DataSheet
         geometry = DataSheet.load().geometry
     rng = np.random.default_rng(seed)
     theta = np.vstack([random_regressor(m, geometry, n_samples, rng, eps=eps) for m in modes])

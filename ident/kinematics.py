@@ -15,7 +15,7 @@ from functools import cache
 
 import numpy as np
 
-from ident.datasheet import Geometry
+from qomni.ident.datasheet import Geometry
 
 N_GENERALIZED = {1: 2, 2: 2, 3: 1, 4: 1}
 """Number n_k of generalized velocities s_dot_k (10)-(13) per motion mode k."""
@@ -76,7 +76,7 @@ def _compile(matrix, args):
 
 @cache
 def _compiled(name: str, k: int = 0):
-    from ident import symbolic as S
+    from qomni.ident import symbolic as S
 
     geo = S.GEOMETRY_SYMBOLS
     if name == "A":

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ident import kinematics as _kin
+from qomni.ident import kinematics as _kin
 
 
 def chassis_velocity(alpha, alpha_dot, beta_dot, geometry) -> np.ndarray:

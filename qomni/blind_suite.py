@@ -194,8 +194,8 @@ def run_campaign(out: Path, effects: dict, seed: int, quick: bool) -> None:
 
 def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
     """Campaign + blind diagnosis of one case (runs in a worker process or a Ray task)."""
-    from diagnosis.diagnose import diagnose_paths
-    from diagnosis.report import write_report
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.diagnosis.report import write_report
 
     started = time.perf_counter()
     result = CaseResult(case)

@@ -31,7 +31,7 @@ def _fail(message: str) -> None:
 
 
 def _datasheet(vehicle: Optional[Path], datasheet: Optional[Path]):
-    from ident.datasheet import DataSheet, DataSheetError
+    from qomni.ident.datasheet import DataSheet, DataSheetError
 
     try:
         return DataSheet.load(datasheet or vehicle)
@@ -40,7 +40,7 @@ def _datasheet(vehicle: Optional[Path], datasheet: Optional[Path]):
 
 
 def _description(vehicle: Optional[Path]):
-    from emulator.description import DescriptionError, VehicleDescription
+    from qomni.emulator.description import DescriptionError, VehicleDescription
 
     try:
         return VehicleDescription.load(vehicle)
@@ -52,7 +52,7 @@ def _effects(path: Optional[Path]):
     """The effects file's EffectSet, or None (the prototype as described)."""
     if path is None:
         return None
-    from emulator.effects import EffectSet, EffectsError
+    from qomni.emulator.effects import EffectSet, EffectsError
 
     try:
         return EffectSet.load(path)
@@ -70,7 +70,7 @@ def _vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int,
         return embedded_vehicle(_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
                                 effects=effects,
                                 faults=faults)
-    from hil.client import VehicleClient
+    from qomni.hil.client import VehicleClient
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
 
@@ -109,7 +109,7 @@ def campaign(
                    "plus the effects it lists. Default: the prototype as described."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
-    from ident.campaign import Campaign, CampaignAborted, CampaignSettings
+    from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = _datasheet(vehicle, datasheet)
     if faults is not None and bus is not None:
@@ -141,7 +141,7 @@ def campaign(
             _run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         _fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
-    from hil.dbc import write_dbc
+    from qomni.hil.dbc import write_dbc
 
     write_dbc(out / "bus.dbc")  # decodes bus.blf in CANoe, cantools, candump-based tools
     rect = json.loads((out / "metadata.json").read_text())["occupied_rectangle"]
@@ -152,8 +152,8 @@ def campaign(
 
 
 def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=None) -> None:
-    from ident.campaign import CampaignAborted
-    from ident.single_axis import (SINGLE_AXIS_DIR, identify_single_axis, plan_single_axis,
+    from qomni.ident.campaign import CampaignAborted
+    from qomni.ident.single_axis import (SINGLE_AXIS_DIR, identify_single_axis, plan_single_axis,
                                    run_single_axis)
 
     (out / SINGLE_AXIS_DIR).mkdir(parents=True, exist_ok=True)
@@ -187,7 +187,7 @@ def single_axis_command(
 
 
 def _identify_and_report(run_dir: Path) -> None:
-    from ident.identify import identify_run, validate_run
+    from qomni.ident.identify import identify_run, validate_run
 
     result = _guarded(lambda: identify_run(run_dir))
     _print_parameters(result)
@@ -197,9 +197,9 @@ def _identify_and_report(run_dir: Path) -> None:
 
 
 def _guarded(fn):
-    from ident.estimation import IdentifiabilityError
-    from ident.identify import RunDirectoryError
-    from ident.recording import RecordingError
+    from qomni.ident.estimation import IdentifiabilityError
+    from qomni.ident.identify import RunDirectoryError
+    from qomni.ident.recording import RecordingError
 
     try:
         return fn()
@@ -208,7 +208,7 @@ def _guarded(fn):
 
 
 def _print_parameters(result) -> None:
-    from ident.estimation import PARAMETER_UNITS
+    from qomni.ident.estimation import PARAMETER_UNITS
 
     table = Table(title="Identified parameters (paper Table 2)")
     for col in ("Name", "Value", "Std. deviation", "Unit"):
@@ -236,8 +236,8 @@ def _print_validation(validation) -> None:
 
 
 def _plots(run_dir: Path, result, validation) -> None:
-    from ident.identify import identification_blocks, load_run, validation_blocks
-    from ident.plots import torque_comparison
+    from qomni.ident.identify import identification_blocks, load_run, validation_blocks
+    from qomni.ident.plots import torque_comparison
 
     signals, sheet, _ = load_run(run_dir)
     times = {name: signals.of_step(name).time for name in signals.steps()}
@@ -253,7 +253,7 @@ def _plots(run_dir: Path, result, validation) -> None:
 @app.command()
 def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campaign.")):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
-    from ident.identify import identify_run
+    from qomni.ident.identify import identify_run
 
     _print_parameters(_guarded(lambda: identify_run(run_dir)))
     console.print(f"written {run_dir / 'identification.json'}")
@@ -262,7 +262,7 @@ def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campai
 @app.command()
 def validate(run_dir: Path = typer.Argument(..., help="Run directory with identification.json.")):
     """Validate identification.json on the recorded lane change (writes validation.json, plots)."""
-    from ident.identify import load_identification, validate_run
+    from qomni.ident.identify import load_identification, validate_run
 
     validation = _guarded(lambda: validate_run(run_dir))
     _print_validation(validation)
@@ -301,8 +301,8 @@ def export_fmu(
     vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
-    from fmu.export import FmuExportError, export_feedforward_fmu, export_plant_fmu
-    from ident.identify import datasheet_from_metadata, load_identification
+    from qomni.fmu.export import FmuExportError, export_feedforward_fmu, export_plant_fmu
+    from qomni.ident.identify import datasheet_from_metadata, load_identification
 
     exporters = {"feedforward": (export_feedforward_fmu, "feed-forward law (21)"),
                  "plant": (export_plant_fmu, "plant, reduced dynamics (19)/(20) per motion mode")}
@@ -337,8 +337,8 @@ def diagnose(
 ):
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
-    from diagnosis.diagnose import diagnose_paths
-    from diagnosis.report import write_report
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.diagnosis.report import write_report
 
     d = _guarded(lambda: diagnose_paths(model, data, holdout, simulate=simulate))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
@@ -365,7 +365,7 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
 
     Connect with --bus socketcand:127.0.0.1:PORT/can0 (python-can's socketcand interface).
     """
-    from hil.hub import Hub, hub_bus_spec
+    from qomni.hil.hub import Hub, hub_bus_spec
 
     with Hub(port=port, max_clients=max_clients) as running:
         console.print(f"hub listening on 127.0.0.1:{running.port}; bus spec "

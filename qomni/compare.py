@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from emulator.description import VehicleDescription
-from ident.identify import load_identification
+from qomni.emulator.description import VehicleDescription
+from qomni.ident.identify import load_identification
 
 COMPARISON_JSON = "comparison.json"
 

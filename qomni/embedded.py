@@ -11,11 +11,11 @@ import os
 from pathlib import Path
 from typing import Iterator
 
-from emulator.description import VehicleDescription
-from emulator.effects import EffectSet
-from emulator.vehicle import Emulator
-from hil.client import VehicleClient
-from hil.server import VehicleServer
+from qomni.emulator.description import VehicleDescription
+from qomni.emulator.effects import EffectSet
+from qomni.emulator.vehicle import Emulator
+from qomni.hil.client import VehicleClient
+from qomni.hil.server import VehicleServer
 
 _channels = itertools.count()
 

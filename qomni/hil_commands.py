@@ -19,9 +19,9 @@ def _load_or_fail(path: Optional[Path], what: str):
     if path is None:
         return None
     if what == "faults":
-        from hil.faults import FaultPlan as loader, FaultPlanError as error
+        from qomni.hil.faults import FaultPlan as loader, FaultPlanError as error
     else:
-        from emulator.effects import EffectSet as loader, EffectsError as error
+        from qomni.emulator.effects import EffectSet as loader, EffectsError as error
     try:
         return loader.load(path)
     except (error, FileNotFoundError) as exc:
@@ -50,9 +50,9 @@ def emulate(
                                          "(latencies in s)."),
 ):
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
-    from emulator.vehicle import Emulator
-    from hil.bus import parse_bus_spec
-    from hil.server import VehicleServer
+    from qomni.emulator.vehicle import Emulator
+    from qomni.hil.bus import parse_bus_spec
+    from qomni.hil.server import VehicleServer
 
     try:
         parse_bus_spec(bus)
@@ -121,12 +121,12 @@ def decode(
     """Decode a recorded bus log (ours or another tool's) with the EDS/DCF PDO mapping into a run directory."""
     import json
 
-    from hil.decode import DecodeError, DecodeReport, decode_log, node_files
-    from hil.layout import DRIVE_EDS, ENCODER_EDS
-    from ident.campaign import METADATA, SIGNALS
-    from ident.datasheet import DataSheet, DataSheetError
-    from ident.identify import RunDirectoryError, datasheet_from_metadata
-    from ident.recording import SignalWriter
+    from qomni.hil.decode import DecodeError, DecodeReport, decode_log, node_files
+    from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
+    from qomni.ident.campaign import METADATA, SIGNALS
+    from qomni.ident.datasheet import DataSheet, DataSheetError
+    from qomni.ident.identify import RunDirectoryError, datasheet_from_metadata
+    from qomni.ident.recording import SignalWriter
 
     if (out / SIGNALS).exists():
         _fail(f"{out / SIGNALS} exists; choose a new --out")
@@ -203,8 +203,8 @@ def replay(
                                      "requests), e.g. to drive an emulator or a real vehicle again."),
 ):
     """Replay a recorded log onto a bus (python-can LogReader + MessageSync)."""
-    from hil.bus import open_bus
-    from hil.recorder import replay as replay_log
+    from qomni.hil.bus import open_bus
+    from qomni.hil.recorder import replay as replay_log
 
     try:
         target = open_bus(bus)

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
-from diagnosis.fit import ChannelShrink
-from ident.datasheet import DataSheet
+from qomni.diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
+from qomni.diagnosis.fit import ChannelShrink
+from qomni.ident.datasheet import DataSheet
 from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
 
 
@@ -100,14 +100,14 @@ def test_each_stretch_between_limited_rows_gets_its_own_constant(free, expected)
 def _stribeck(variant, significant, p_value=1e-3, shrink=0.3, v_s=0.02, removed=50.0):
     from types import SimpleNamespace as NS
 
-    from diagnosis.fit import Evaluation
+    from qomni.diagnosis.fit import Evaluation
     return NS(hypothesis=NS(name="stribeck", variant=variant), significant=significant, p_value=p_value,
               physical=True, notes=[], fit=NS(nonlinear=v_s),
               evaluation=Evaluation([], 100.0, 100.0 - removed, "steer_left/alpha_l", shrink, (0.0, 0.5)))
 
 
 def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
-    from diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    from qomni.diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
     asked = []
 
     def z_of(z):
@@ -152,7 +152,7 @@ def test_wheel_variant_alone_significant_is_placed_in_the_steering_joints_when_u
     than the reference run: the friction is established, not in the wheel joints -> steering variant,
     with the wheel variant's p, if that one confirms on held-out data; with z above the bar the wheel
     variant stays."""
-    from diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    from qomni.diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
     wheels = _stribeck("joints=wheels", True, p_value=5.6e-3)
     steering = _stribeck("joints=steering", False, p_value=1.2e-2)
     _tell_friction_joints_apart([steering, wheels], lambda v_s: 0.0)

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from emulator.description import VehicleDescription
-from emulator.vehicle import Emulator
-from hil.client import VehicleClient
-from hil.server import VehicleServer
-from ident import odometry
-from ident.campaign import Campaign, CampaignAborted, CampaignSettings
-from ident.datasheet import DataSheet
-from ident.identify import identify_run, validate_run
-from ident.recording import read_signals
+from qomni.emulator.description import VehicleDescription
+from qomni.emulator.vehicle import Emulator
+from qomni.hil.client import VehicleClient
+from qomni.hil.server import VehicleServer
+from qomni.ident import odometry
+from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
+from qomni.ident.datasheet import DataSheet
+from qomni.ident.identify import identify_run, validate_run
+from qomni.ident.recording import read_signals
 from qomni.cli import app
 from qomni.embedded import LOCKSTEP_SYNC_TIMEOUT
 
@@ -183,7 +183,7 @@ class FakeVehicle:
         if self.cycles == self.fail_after:
             raise self.exc
         self.cycles += 1
-        from hil.measurement import Measurement
+        from qomni.hil.measurement import Measurement
 
         return Measurement(time=self.cycles * 0.002, motor_position=np.zeros(4),
                            motor_velocity=np.zeros(4), motor_torque=np.asarray(motor_torque, float),

@@ -6,10 +6,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from diagnosis.channels import ChannelData, StepContext
-from diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE, play, plausible
-from ident import filtering, kinematics
-from ident.datasheet import DataSheet
+from qomni.diagnosis.channels import ChannelData, StepContext
+from qomni.diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE, play, plausible
+from qomni.ident import filtering, kinematics
+from qomni.ident.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G = SHEET.geometry

@@ -7,8 +7,8 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from diagnosis import fit as fitting
-from diagnosis.hypotheses import INCLINE, Hypothesis, plausible
+from qomni.diagnosis import fit as fitting
+from qomni.diagnosis.hypotheses import INCLINE, Hypothesis, plausible
 
 N_ROWS = 400
 
@@ -234,7 +234,7 @@ def test_a_hypothesis_whose_torque_column_the_base_spans_is_separable_through_it
 
 
 def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_against_the_models_own_floor():
-    from diagnosis.diagnose import FLOOR_MULTIPLE_MORE, _confirms_further
+    from qomni.diagnosis.diagnose import FLOOR_MULTIPLE_MORE, _confirms_further
 
     def evaluation(before, after, ci=(0.04, 0.10), removed=10.0):
         shrink = 1 - after / before

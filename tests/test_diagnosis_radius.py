@@ -9,10 +9,10 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from diagnosis.hypotheses import WHEEL_RADIUS, _input_torque, _project
-from emulator.description import VehicleDescription
-from ident import dynamics, kinematics, odometry
-from ident.datasheet import Geometry
+from qomni.diagnosis.hypotheses import WHEEL_RADIUS, _input_torque, _project
+from qomni.emulator.description import VehicleDescription
+from qomni.ident import dynamics, kinematics, odometry
+from qomni.ident.datasheet import Geometry
 
 D = VehicleDescription.load()
 G = Geometry(D.geometry.l, D.geometry.b, D.geometry.a, D.geometry.r, D.geometry.steering_limit)

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from emulator.description import VehicleDescription
-from emulator.effects import REGISTRY, EffectSet, EffectsError
-from emulator.vehicle import Emulator
+from qomni.emulator.description import VehicleDescription
+from qomni.emulator.effects import REGISTRY, EffectSet, EffectsError
+from qomni.emulator.vehicle import Emulator
 
 D = VehicleDescription.load()
 G, T, DR = D.geometry, D.truth, D.drive
 THETA4 = math.atan(G.l / G.b)
-EFFECTS_DIR = resources.files("emulator").joinpath("data/effects")
+EFFECTS_DIR = resources.files("qomni.emulator").joinpath("data/effects")
 
 
 def emulator(effects: dict | None = None, description=D, **kwargs) -> Emulator:
@@ -410,8 +410,8 @@ def test_a_wheel_sliding_sideways_keeps_rolling_along_its_heading():
 def steered_circle(effects, alpha_v=0.3, speed=1.0, seconds=2.5):
     """Mode 2 at α_v with a steering hold through differential torques: mean chassis velocities
     (ẋ, ẏ, γ̇) over the last 0.5 s."""
-    from ident import kinematics
-    from ident.datasheet import Geometry
+    from qomni.ident import kinematics
+    from qomni.ident.datasheet import Geometry
     geometry = Geometry(G.l, G.b, G.a, G.r, G.steering_limit)
     alpha0 = kinematics.f_icr(np.array([alpha_v]), geometry)[0]
     hold = np.linalg.pinv(DR.i_G * kinematics.H(1, np.zeros((1, 2)), geometry)[0][5:9, :].T)

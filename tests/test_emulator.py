@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from emulator.description import DescriptionError, VehicleDescription
-from emulator.urdf import body_inertias
-from emulator.vehicle import Emulator
+from qomni.emulator.description import DescriptionError, VehicleDescription
+from qomni.emulator.urdf import body_inertias
+from qomni.emulator.vehicle import Emulator
 
 D = VehicleDescription.load()
 G, T, DR = D.geometry, D.truth, D.drive
@@ -137,7 +137,7 @@ def test_bad_input_is_refused(tmp_path):
         with pytest.raises(ValueError):
             emu.set_motor_torques([1, 2, 3, float("nan")])
     bad = tmp_path / "bad.toml"
-    prototype = resources.files("emulator").joinpath("data/prototype.toml").read_text()
+    prototype = resources.files("qomni.emulator").joinpath("data/prototype.toml").read_text()
     bad.write_text(prototype.replace("m_ch = 842.0684", "m_ch = -1"))
     with pytest.raises(DescriptionError, match="truth.m_ch"):
         VehicleDescription.load(bad)

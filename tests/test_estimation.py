@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from ident import excitation as ex
-from ident.estimation import (
+from qomni.ident import excitation as ex
+from qomni.ident.estimation import (
     P1_NAMES,
     PARAMETER_NAMES,
     IdentifiabilityError,
@@ -23,7 +23,7 @@ from ident.estimation import (
     estimate_single_axis,
     row_mask,
 )
-from ident.validation import compare_generalized_torques, generalized_torques
+from qomni.ident.validation import compare_generalized_torques, generalized_torques
 
 P_TRUE = np.array(
     [0.3342, 4.4649, 12.9458, 0.4501, 2.4820, 17.1071, 842.0684, 286.5955, 0.7316, 3.9656, 0.121]

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from ident import excitation as ex
+from qomni.ident import excitation as ex
 
 L, B, A = 1.2, 0.9, 0.08
 

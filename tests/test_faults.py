@@ -9,10 +9,10 @@ import can
 import numpy as np
 import pytest
 
-from hil.client import CommunicationError, VehicleClient
-from hil.drive402 import PowerState
-from hil.faults import FaultInjector, FaultPlan, FaultPlanError, FrameLoss
-from hil.server import VehicleServer
+from qomni.hil.client import CommunicationError, VehicleClient
+from qomni.hil.drive402 import PowerState
+from qomni.hil.faults import FaultInjector, FaultPlan, FaultPlanError, FrameLoss
+from qomni.hil.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant, wait_for
 
 S = PowerState
@@ -164,13 +164,13 @@ def test_bus_off_and_sync_loss_fault_the_drives(spec, kind):
 
 # ------------------------------------------------------------- campaign: abort, keep the record
 def test_campaign_aborts_cleanly_on_a_fault_and_keeps_the_recording(tmp_path):
-    from ident.campaign import Campaign, CampaignAborted, CampaignSettings
-    from ident.datasheet import DataSheet
-    from ident.recording import read_signals
+    from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
+    from qomni.ident.datasheet import DataSheet
+    from qomni.ident.recording import read_signals
     import json
 
-    from emulator.description import VehicleDescription
-    from emulator.vehicle import Emulator
+    from qomni.emulator.description import VehicleDescription
+    from qomni.emulator.vehicle import Emulator
 
     description = VehicleDescription.load()
     plan = FaultPlan.from_dict({"power_cycle": [{"node": 2, "at": 0.6, "off": 0.1}]})

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ident import filtering as flt
+from qomni.ident import filtering as flt
 
 T_S = 2e-3
 

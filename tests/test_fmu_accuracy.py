@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("fmpy")
 
-from fmu.accuracy import OUTPUTS, format_table, predict_windows  # noqa: E402
+from qomni.fmu.accuracy import OUTPUTS, format_table, predict_windows  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

@@ -7,11 +7,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from fmu import codegen
-from fmu.export import c_source_directory
-from ident import kinematics
-from ident.datasheet import DataSheet, Geometry
-from ident.dynamics import feedforward
+from qomni.fmu import codegen
+from qomni.fmu.export import c_source_directory
+from qomni.ident import kinematics
+from qomni.ident.datasheet import DataSheet, Geometry
+from qomni.ident.dynamics import feedforward
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

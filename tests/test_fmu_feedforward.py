@@ -17,12 +17,12 @@ from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
-from fmu.export import c_source_directory, export_feedforward_fmu  # noqa: E402
-from ident import kinematics  # noqa: E402
-from ident.datasheet import DataSheet  # noqa: E402
-from ident.dynamics import feedforward  # noqa: E402
-from ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
-from ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS  # noqa: E402
+from qomni.fmu.export import c_source_directory, export_feedforward_fmu  # noqa: E402
+from qomni.ident import kinematics  # noqa: E402
+from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.ident.dynamics import feedforward  # noqa: E402
+from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

@@ -13,14 +13,14 @@ from fmpy import read_model_description  # noqa: E402
 from fmpy.fmi1 import FMICallException  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
-from fmu import codegen  # noqa: E402
-from fmu import plant_reference as R  # noqa: E402
-from fmu.cosim import MOTOR_TORQUE, FmuSlave, PlantVehicle  # noqa: E402
-from fmu.export import c_source_directory, export_plant_fmu  # noqa: E402
-from ident import kinematics  # noqa: E402
-from ident.datasheet import DataSheet  # noqa: E402
-from ident.dynamics import forward_dynamics  # noqa: E402
-from ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.fmu import codegen  # noqa: E402
+from qomni.fmu import plant_reference as R  # noqa: E402
+from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave, PlantVehicle  # noqa: E402
+from qomni.fmu.export import c_source_directory, export_plant_fmu  # noqa: E402
+from qomni.ident import kinematics  # noqa: E402
+from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.ident.dynamics import forward_dynamics  # noqa: E402
+from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
 from test_fmu_codegen import random_states  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -89,7 +89,7 @@ def test_generated_forward_dynamics_equal_ident_on_random_states(lib, k):
 
 def test_forward_dynamics_inverts_the_feedforward_law():
     """(21) then the forward dynamics give back s_ddot (modes with a full-rank H_k^T B)."""
-    from ident.dynamics import feedforward
+    from qomni.ident.dynamics import feedforward
 
     rng = np.random.default_rng(3)
     for k in (1, 2, 3, 4):

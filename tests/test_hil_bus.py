@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 import canopen
 
-from hil.bus import BusSpec, DEFAULT_VIRTUAL_CHANNEL, open_bus, parse_bus_spec
-from hil.layout import DRIVE_EDS, ENCODER_EDS
-from hil.pdo_codec import PdoMappingError, build_codec
-from hil import units
+from qomni.hil.bus import BusSpec, DEFAULT_VIRTUAL_CHANNEL, open_bus, parse_bus_spec
+from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
+from qomni.hil.pdo_codec import PdoMappingError, build_codec
+from qomni.hil import units
 
 
 @pytest.mark.parametrize("spec, expected", [

@@ -1,9 +1,9 @@
 """Worst-case bus load of the active PDO mapping (hil.busload)."""
 import pytest
 
-from hil.busload import bus_load, frame_bits
-from hil.decode import node_files
-from hil.layout import DRIVE_EDS
+from qomni.hil.busload import bus_load, frame_bits
+from qomni.hil.decode import node_files
+from qomni.hil.layout import DRIVE_EDS
 
 
 def test_frame_bits_worst_case_stuffing():

@@ -10,10 +10,10 @@ import can
 import numpy as np
 import pytest
 
-from hil.client import CommunicationError, DriveFaultError, VehicleClient
-from hil.drive402 import PowerState
-from hil.measurement import Measurement, VehicleInterface
-from hil.server import VehicleServer
+from qomni.hil.client import CommunicationError, DriveFaultError, VehicleClient
+from qomni.hil.drive402 import PowerState
+from qomni.hil.measurement import Measurement, VehicleInterface
+from qomni.hil.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
@@ -174,7 +174,7 @@ def test_bad_torque_arguments(spec):
 
 def test_lean_mapping_from_eds(spec, tmp_path):
     """Server and client with the same non-default EDS mapping (torque actual moved into TPDO1)."""
-    from hil.layout import DRIVE_EDS
+    from qomni.hil.layout import DRIVE_EDS
     text = DRIVE_EDS.read_text()
     lean = text.replace("DefaultValue=0x60410010", "DefaultValue=0x60770010", 1)   # TPDO1: 0x6077 + 0x6064
     path = tmp_path / "lean402.eds"
@@ -196,9 +196,9 @@ def test_deterministic_round_trip():
     assert np.array_equal(a, b) and np.array_equal(ta, tb)
 
 
-@pytest.mark.parametrize("module", ["hil", "hil.client", "hil.server", "hil.bus", "hil.measurement"])
+@pytest.mark.parametrize("module", ["qomni.hil", "qomni.hil.client", "qomni.hil.server", "qomni.hil.bus", "qomni.hil.measurement"])
 def test_hil_does_not_import_emulator(module):
-    code = (f"import sys, {module}; bad = [m for m in sys.modules if m.split('.')[0] == 'emulator'];"
+    code = (f"import sys, {module}; bad = [m for m in sys.modules if m.split('.')[:2] == ['qomni', 'emulator']];"
             f"assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
 

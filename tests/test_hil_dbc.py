@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from canopen import objectdictionary as od
 
-from hil.client import VehicleClient
-from hil.dbc import build_database, write_dbc
-from hil.layout import DRIVE_EDS, ENCODER_EDS
-from hil.pdo_codec import PdoMappingError, build_codec
-from hil.server import VehicleServer
-from hil.units import counts_to_alpha
+from qomni.hil.client import VehicleClient
+from qomni.hil.dbc import build_database, write_dbc
+from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
+from qomni.hil.pdo_codec import PdoMappingError, build_codec
+from qomni.hil.server import VehicleServer
+from qomni.hil.units import counts_to_alpha
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 RATED = 2.0                              # N m, FakePlant's rated torque (0x6076 = 2000 mN m)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from hil.client import VehicleClient
-from hil.decode import DecodeError, DecodeReport, decode_log, node_files
-from hil.recorder import replay
-from hil.server import VehicleServer
+from qomni.hil.client import VehicleClient
+from qomni.hil.decode import DecodeError, DecodeReport, decode_log, node_files
+from qomni.hil.recorder import replay
+from qomni.hil.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 N_CYCLES = 40
@@ -68,7 +68,7 @@ def test_decode_reproduces_the_client_measurements(session, which):
 
 def test_decode_with_another_mapping_needs_its_eds(session, tmp_path):
     _, logs, _, _ = session
-    from hil.layout import DRIVE_EDS
+    from qomni.hil.layout import DRIVE_EDS
 
     lean = tmp_path / "drive402.eds"
     lean.write_bytes(DRIVE_EDS.read_bytes().replace(b"DefaultValue=0x60640020", b"DefaultValue=0x60770010"))
@@ -80,8 +80,8 @@ def test_decode_with_another_mapping_needs_its_eds(session, tmp_path):
 
 
 def test_qomni_decode_writes_a_run_directory(session, tmp_path):
-    from ident.datasheet import DataSheet
-    from ident.identify import load_run
+    from qomni.ident.datasheet import DataSheet
+    from qomni.ident.identify import load_run
     from qomni.cli import app
 
     _, logs, reference, _ = session

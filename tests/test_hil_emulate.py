@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from hil.client import VehicleClient
-from hil.hub import Hub, hub_bus_spec
+from qomni.hil.client import VehicleClient
+from qomni.hil.hub import Hub, hub_bus_spec
 
 
 QOMNI = [sys.executable, "-c", "from qomni.cli import main; main()"]
@@ -41,7 +41,7 @@ def test_emulate_serves_an_external_master_and_reports_latency(tmp_path):
         process = _serve(spec, "--duration", "6", "--sync-timeout", "2", "--faults", str(faults))
         try:
             _wait_ready(process)
-            from emulator.description import VehicleDescription
+            from qomni.emulator.description import VehicleDescription
 
             drive = VehicleDescription.load().drive
             with VehicleClient.from_drive(drive, spec, timeout=2.0, boot_timeout=5.0) as client:

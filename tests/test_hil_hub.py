@@ -13,9 +13,9 @@ import can
 import numpy as np
 import pytest
 
-from hil.client import VehicleClient
-from hil.hub import Hub, hub_bus_spec, open_hub_bus
-from hil.server import VehicleServer
+from qomni.hil.client import VehicleClient
+from qomni.hil.hub import Hub, hub_bus_spec, open_hub_bus
+from qomni.hil.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
@@ -224,7 +224,7 @@ def test_bounded_clients_and_buffers():
 
 def test_separate_processes_share_the_hub():
     """``python -m hil.hub`` in its own process; a frame from this process reaches a client process."""
-    with subprocess.Popen([sys.executable, "-m", "hil.hub", "--port", "0"], stdout=subprocess.PIPE,
+    with subprocess.Popen([sys.executable, "-m", "qomni.hil.hub", "--port", "0"], stdout=subprocess.PIPE,
                           text=True) as hub:
         try:
             port = int(re.search(r"127\.0\.0\.1:(\d+)", hub.stdout.readline()).group(1))
@@ -254,8 +254,8 @@ def test_separate_processes_share_the_hub():
 def test_bus_spec_reaches_the_hub_and_refuses_other_hosts():
     import can as _can
 
-    from hil.bus import open_bus, parse_bus_spec
-    from hil.hub import Hub, hub_bus_spec
+    from qomni.hil.bus import open_bus, parse_bus_spec
+    from qomni.hil.hub import Hub, hub_bus_spec
 
     with pytest.raises(ValueError, match="127.0.0.1"):
         parse_bus_spec("socketcand:10.0.0.1:29536/can0")

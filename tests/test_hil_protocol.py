@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from hil.drive402 import PowerState, decode_controlword, Command
-from hil.layout import DRIVE_EDS, ENCODER_EDS
-from hil.server import VehicleServer
+from qomni.hil.drive402 import PowerState, decode_controlword, Command
+from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
+from qomni.hil.server import VehicleServer
 
 T_S = 0.002
 INCREMENTS = 65536

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from ident.datasheet import DataSheet, DataSheetError, Nominal
-from ident.symbolic import PARAMETER_NAMES
+from qomni.ident.datasheet import DataSheet, DataSheetError, Nominal
+from qomni.ident.symbolic import PARAMETER_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
 EMULATOR_TOML = ROOT / "emulator" / "data" / "prototype.toml"

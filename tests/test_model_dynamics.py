@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from ident import dynamics as D
-from ident import kinematics as K
-from ident import symbolic as S
-from ident.datasheet import DataSheet
+from qomni.ident import dynamics as D
+from qomni.ident import kinematics as K
+from qomni.ident import symbolic as S
+from qomni.ident.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G, I_G = SHEET.geometry, SHEET.drive.i_G

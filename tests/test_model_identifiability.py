@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from ident import identifiability as I
-from ident.datasheet import DataSheet
-from ident.symbolic import PARAMETER_NAMES
+from qomni.ident import identifiability as I
+from qomni.ident.datasheet import DataSheet
+from qomni.ident.symbolic import PARAMETER_NAMES
 
 G = DataSheet.load().geometry
 ALL = PARAMETER_NAMES

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from ident import kinematics as K
-from ident import symbolic as S
-from ident.datasheet import DataSheet, Geometry
+from qomni.ident import kinematics as K
+from qomni.ident import symbolic as S
+from qomni.ident.datasheet import DataSheet, Geometry
 
 G = DataSheet.load().geometry
 RNG = np.random.default_rng(1)

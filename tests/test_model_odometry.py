@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from ident import kinematics as K
-from ident import odometry as O
-from ident.datasheet import DataSheet
+from qomni.ident import kinematics as K
+from qomni.ident import odometry as O
+from qomni.ident.datasheet import DataSheet
 
 G = DataSheet.load().geometry
 RNG = np.random.default_rng(3)

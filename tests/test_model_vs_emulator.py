@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from emulator.description import VehicleDescription
-from emulator.vehicle import Emulator
-from ident import dynamics, kinematics
-from ident.datasheet import Geometry
+from qomni.emulator.description import VehicleDescription
+from qomni.emulator.vehicle import Emulator
+from qomni.ident import dynamics, kinematics
+from qomni.ident.datasheet import Geometry
 
 D = VehicleDescription.load()
 G = Geometry(D.geometry.l, D.geometry.b, D.geometry.a, D.geometry.r, D.geometry.steering_limit)

@@ -4,9 +4,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from diagnosis.channels import _misalignment_sliding, rolling_constraints
-from ident import kinematics
-from ident.datasheet import DataSheet
+from qomni.diagnosis.channels import _misalignment_sliding, rolling_constraints
+from qomni.ident import kinematics
+from qomni.ident.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G = SHEET.geometry

@@ -3,8 +3,8 @@ joint (static friction ratio·d_c decaying to d_c over v_s, as the emulator's jo
 import numpy as np
 import pytest
 
-from diagnosis.hypotheses import EPS_SIGN, STICK_VELOCITY, _friction_direction, _stribeck
-from ident import filtering
+from qomni.diagnosis.hypotheses import EPS_SIGN, STICK_VELOCITY, _friction_direction, _stribeck
+from qomni.ident import filtering
 
 T_S = 0.002
 J, D_C, V_S = 0.5, 2.0, 0.05  # kg m², N m, rad/s

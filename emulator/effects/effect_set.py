@@ -59,7 +59,7 @@ class EffectSet:
         """The shipped example file ``emulator/data/effects/<name>.toml``: one effect at a realistic high
         magnitude (``<effect name>``, or ``stribeck_wheels``/``stribeck_steering``), ``ideal`` or
         ``prototype``."""
-        path = resources.files("emulator").joinpath(f"data/effects/{name}.toml")
+        path = resources.files("qomni.emulator").joinpath(f"data/effects/{name}.toml")
         if not path.is_file():
             raise EffectsError(f"no shipped effects file {name}.toml")
         return cls.load(path)
