@@ -46,12 +46,10 @@ import numpy as np
 
 from qomni.ident import filtering, kinematics
 from qomni.ident.identify import model_alpha
-from qomni.ident.symbolic import FRONT_SIGN, SIDE_INDEX, SIDE_SIGN
+from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY, SIDE_INDEX, SIDE_SIGN
 
 from .channels import ChannelData
 
-GRAVITY = 9.81
-EPS_SIGN = 0.01  # rad/s, tanh smoothing of friction signs (the model's ε)
 
 
 @dataclass(frozen=True)

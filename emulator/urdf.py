@@ -28,8 +28,9 @@ from xml.sax.saxutils import quoteattr
 
 from .description import DescriptionError, VehicleDescription
 
-WHEELS = ("fl", "rl", "fr", "rr")
-SIDE_SIGN = {"fl": 1.0, "rl": 1.0, "fr": -1.0, "rr": -1.0}
+from qomni.conventions import SIDE_SIGN as _SIDE_SIGN, WHEELS
+
+SIDE_SIGN = {w: float(s) for w, s in zip(WHEELS, _SIDE_SIGN)}
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from .effects.base import ideal_plan
 from .sensors import SensorReading
 from .urdf import WHEELS, vehicle_urdf
 
-GRAVITY = 9.81
+from qomni.conventions import GRAVITY
 SETTLE_TIME = 0.3  # s of physics run at construction so the soft contacts reach equilibrium
 LIFT_HEIGHT = 0.3  # m the lifted vehicle's wheels hang above the floor
 

@@ -49,7 +49,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from xml.etree import ElementTree as ET
 
-from qomni.ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS
+from qomni.conventions import EPSILON, PARAMETER_NAMES, WHEELS
+from qomni.ident.symbolic import COORDINATE_NAMES
 
 from . import codegen
 
@@ -58,8 +59,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from qomni.ident.estimation import IdentificationResult
 
 DEFAULT_MODEL_IDENTIFIER = "qomni_feedforward"
-DEFAULT_EPS = 0.01
-"""rad/s; default tanh smoothing (ident.dynamics.EPS, the paper's epsilon)."""
+DEFAULT_EPS = EPSILON
+"""rad/s; default tanh smoothing (the paper's ε, :data:`qomni.conventions.EPSILON`)."""
 
 BINARY_DIRECTORY = {2: "linux64", 3: "x86_64-linux"}
 """Platform directory under ``binaries/`` (FMI 2.0 section 2.3, FMI 3.0 section 2.5.1.1)."""

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from qomni.conventions import SIDES, WHEELS  # noqa: F401  (the layout names them with the node IDs)
+
 #: CiA 402 drive node IDs, wheel order fl, rl, fr, rr (index 0..3).
 DRIVE_NODE_IDS: tuple[int, ...] = (1, 2, 3, 4)
 #: CiA 406 steering encoder node IDs, left (α_l) then right (α_r).
 ENCODER_NODE_IDS: tuple[int, ...] = (5, 6)
-WHEELS: tuple[str, ...] = ("fl", "rl", "fr", "rr")
-SIDES: tuple[str, ...] = ("left", "right")
 
 #: COB-ID of the SYNC object (CiA 301 §7.2.5, default of 0x1005).
 SYNC_COB_ID = 0x80

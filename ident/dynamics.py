@@ -16,8 +16,7 @@ import numpy as np
 from qomni.ident import kinematics as _kin
 from qomni.ident.symbolic import PARAMETER_NAMES
 
-EPS = 0.01
-"""rad/s; default tanh smoothing of Coulomb friction (the paper's epsilon)."""
+from qomni.conventions import EPSILON as EPS
 
 _J = {name: j for j, name in enumerate(PARAMETER_NAMES)}
 

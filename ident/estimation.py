@@ -37,6 +37,8 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from qomni.conventions import EPSILON, P1_NAMES, P2_NAMES, PARAMETER_NAMES, PARAMETER_UNITS, WHEELS
+
 __all__ = [
     "PARAMETER_NAMES",
     "P1_NAMES",
@@ -54,23 +56,8 @@ __all__ = [
     "estimate_single_axis",
 ]
 
-#: Parameter order p of (18).
-PARAMETER_NAMES: tuple[str, ...] = (
-    "C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "m_ch", "C_ch", "d_vw", "d_cw", "B_w",
-)
-#: Identified parameters p₁ and fixed (dependent) parameters p₂ of (23).
-P1_NAMES: tuple[str, ...] = PARAMETER_NAMES[:10]
-P2_NAMES: tuple[str, ...] = ("B_w",)
-PARAMETER_UNITS: dict[str, str] = {
-    "C_l": "kg m^2", "d_vl": "N m s/rad", "d_cl": "N m",
-    "C_r": "kg m^2", "d_vr": "N m s/rad", "d_cr": "N m",
-    "m_ch": "kg", "C_ch": "kg m^2",
-    "d_vw": "N m s/rad", "d_cw": "N m", "B_w": "kg m^2",
-}
 #: Default stiction threshold on |generalized velocity| (rad/s or m/s).
 DEFAULT_VELOCITY_THRESHOLD = 0.05
-#: tanh smoothing ε of Coulomb friction (rad/s), paper section 7.
-EPSILON = 0.01
 #: Relative singular-value tolerance of the column-normalised regressor below which it is rank deficient.
 RANK_TOL = 1e-7
 
@@ -536,7 +523,7 @@ def _newey_west_cov(x: np.ndarray, e: np.ndarray, channel: np.ndarray, row_index
 # --------------------------------------------------------------------------------------------
 
 SINGLE_AXIS_NAMES: tuple[str, ...] = ("B_w", "d_vw", "d_cw")
-WHEEL_NAMES: tuple[str, ...] = ("fl", "rl", "fr", "rr")
+WHEEL_NAMES: tuple[str, ...] = WHEELS
 
 
 @dataclass

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-WHEELS = ("fl", "rl", "fr", "rr")
+from qomni.conventions import WHEELS
 
 #: (name, unit) of every column of signals.csv, in order.
 COLUMNS: tuple[tuple[str, str], ...] = (

@@ -24,15 +24,7 @@ from functools import cache
 
 import sympy as sp
 
-PARAMETER_NAMES = ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr", "m_ch", "C_ch", "d_vw", "d_cw", "B_w")
-"""Names of the dynamic parameters p (18), in this order."""
-
-WHEELS = ("fl", "rl", "fr", "rr")
-SIDE_SIGN = (1, 1, -1, -1)
-"""s_i: +1 left wheels, -1 right wheels."""
-FRONT_SIGN = (1, -1, 1, -1)
-"""sigma_i: +1 front (phi_i = alpha_side, P_x = +l/2), -1 rear (phi_i = -alpha_side, P_x = -l/2)."""
-SIDE_INDEX = (0, 0, 1, 1)
+from qomni.conventions import FRONT_SIGN, PARAMETER_NAMES, SIDE_INDEX, SIDE_SIGN, WHEELS
 """Index of the steering angle (0: alpha_l, 1: alpha_r) that drives wheel i."""
 
 COORDINATE_NAMES = ("x_ch", "y_ch", "gamma_ch", "alpha_l", "alpha_r",

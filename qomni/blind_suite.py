@@ -28,6 +28,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from qomni.conventions import WHEELS
+
 #: Realistic magnitudes per effect: (low, high). Each entry is one effects-file table.
 MAGNITUDES: dict[str, tuple[dict, dict]] = {
     "payload": ({"mass": 150.0, "com_offset": [0.25, 0.15], "height": 0.3},
@@ -49,7 +51,7 @@ MAGNITUDES: dict[str, tuple[dict, dict]] = {
 }
 #: Effects-file table name of each suite entry (two Stribeck variants share one effect).
 TABLE = {"stribeck_wheels": "stribeck", "stribeck_steering": "stribeck"}
-DRIVES = ("fl", "rl", "fr", "rr")
+DRIVES = WHEELS
 #: Names of the magnitude indices 0 and 1 of MAGNITUDES.
 LEVELS = ("low", "high")
 #: Pairs run in the two-effect cases: (entry, magnitude index) each. A 10 ms delay together with a

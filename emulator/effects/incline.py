@@ -8,7 +8,7 @@ import math
 
 from .base import Effect, Param, Plant
 
-GRAVITY = 9.81
+from qomni.conventions import GRAVITY
 
 
 class Incline(Effect):
