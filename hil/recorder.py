@@ -123,3 +123,13 @@ def replay(path: str | Path, bus: can.BusABC, *, realtime: bool = True, skip: fl
         bus.send(msg)
         sent += 1
     return sent
+
+
+_MASTER_FUNCTIONS = {0x0, 0x4, 0x6, 0x8, 0xA, 0xC}      # NMT, RPDO1…4, SDO request (COB-ID >> 7)
+
+
+def sent_by_master(msg) -> bool:
+    """Whether a frame is the master's in the CiA 301 pre-defined connection set (§7.3.3): NMT, SYNC,
+    RPDOs and SDO requests (11-bit identifiers only)."""
+    cob = msg.arbitration_id
+    return not msg.is_extended_id and (cob == 0x80 or (cob >> 7) in _MASTER_FUNCTIONS)

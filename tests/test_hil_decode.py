@@ -111,7 +111,7 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
 
 def test_replay_of_the_master_frames_reproduces_the_run(session):
     """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
-    from qomni.hil_commands import _sent_by_master
+    from qomni.hil.recorder import sent_by_master as _sent_by_master
 
     _, logs, _, original = session
     spec = f"virtual:hil-replay-{uuid.uuid4().hex[:8]}"

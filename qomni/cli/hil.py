@@ -1,6 +1,6 @@
-"""``qomni emulate``, ``qomni decode`` and ``qomni replay``: the emulator for external masters, and bus logs.
+"""``qomni emulate``, ``hub``, ``decode`` and ``replay``: the emulator for external masters, and bus logs.
 
-Registered on the CLI's typer app by :mod:`qomni.cli` (composition root); the work is done in ``hil``.
+The work is done in ``qomni.hil``; these commands wire it to the emulator (composition root).
 """
 from __future__ import annotations
 
@@ -10,22 +10,9 @@ from typing import List, Optional
 
 import typer
 
-from qomni.cli import _description, _fail, app, console
-
-
-def _load_or_fail(path: Optional[Path], what: str):
-    """``FaultPlan.load`` (what='faults') or ``EffectSet.load`` (what='effects') of ``path``; None if no
-    path; a bad file ends the command with its message."""
-    if path is None:
-        return None
-    if what == "faults":
-        from qomni.hil.faults import FaultPlan as loader, FaultPlanError as error
-    else:
-        from qomni.emulator.effects import EffectSet as loader, EffectsError as error
-    try:
-        return loader.load(path)
-    except (error, FileNotFoundError) as exc:
-        _fail(str(exc))
+from .app import app
+from .console import console, fail
+from .loaders import load_description, load_effects, load_faults
 
 
 @app.command()
@@ -57,12 +44,12 @@ def emulate(
     try:
         parse_bus_spec(bus)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if duration is not None and not duration > 0:
-        _fail(f"--duration must be > 0 s, got {duration}")
-    plan = _load_or_fail(faults, "faults")
-    description = _description(vehicle)
-    kwargs = {} if effects is None else {"effects": _load_or_fail(effects, "effects")}
+        fail(f"--duration must be > 0 s, got {duration}")
+    plan = load_faults(faults)
+    description = load_description(vehicle)
+    kwargs = {} if effects is None else {"effects": load_effects(effects)}
     emulator = Emulator(description, seed=seed, lifted=lifted, **kwargs)
     server = VehicleServer(emulator, bus, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
                            faults=plan)
@@ -70,7 +57,7 @@ def emulate(
         try:
             server.start()
         except Exception as exc:                                    # noqa: BLE001 - say what and where
-            _fail(f"cannot open bus {bus!r}: {exc}")
+            fail(f"cannot open bus {bus!r}: {exc}")
         console.print(f"emulating '{description.name}' on {bus} ({'real time' if realtime else 'lock-step'}, "
                       f"T_s = {server.cycle_time * 1e3:g} ms): drives 1-4 (fl, rl, fr, rr), encoders 5, 6; "
                       + ("Ctrl-C stops" if duration is None else f"for {duration:g} s"))
@@ -101,7 +88,26 @@ def emulate(
                       f"dropped in bus-off {c.bus_off_dropped}, delayed {c.delayed}, power cycles "
                       f"{c.power_cycles}, bus-offs {c.bus_offs}, SYNC losses {c.sync_losses}")
     if server.error is not None:
-        _fail(f"the emulator stopped: {server.error}")
+        fail(f"the emulator stopped: {server.error}")
+
+
+@app.command()
+def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a free one)."),
+        max_clients: int = typer.Option(16, help="Most clients connected at once.")):
+    """Share one CAN bus between processes where vcan does not exist: a socketcand hub on 127.0.0.1.
+
+    Connect with --bus socketcand:127.0.0.1:PORT/can0 (python-can's socketcand interface).
+    """
+    from qomni.hil.hub import Hub, hub_bus_spec
+
+    with Hub(port=port, max_clients=max_clients) as running:
+        console.print(f"hub listening on 127.0.0.1:{running.port}; bus spec "
+                      f"{hub_bus_spec(running.port)}; Ctrl-C stops it")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            console.print(f"hub stopped after {running.frames} frames ({running.dropped} dropped)")
 
 
 @app.command()
@@ -129,7 +135,7 @@ def decode(
     from qomni.ident.recording import SignalWriter
 
     if (out / SIGNALS).exists():
-        _fail(f"{out / SIGNALS} exists; choose a new --out")
+        fail(f"{out / SIGNALS} exists; choose a new --out")
     meta: dict = {}
     try:
         if metadata is not None:
@@ -138,7 +144,7 @@ def decode(
         else:
             sheet = DataSheet.load(datasheet)
     except (OSError, ValueError, DataSheetError, RunDirectoryError) as exc:
-        _fail(f"{metadata or datasheet}: {exc}")
+        fail(f"{metadata or datasheet}: {exc}")
     segments = [s for s in meta.get("segments", []) if {"name", "k", "t_start", "t_end"} <= set(s)]
     drive = sheet.drive
     report = DecodeReport()
@@ -162,9 +168,9 @@ def decode(
                 writer.write(name, k, cycle.measurement, cycle.motor_torque_cmd)
                 rows += 1
     except (DecodeError, FileNotFoundError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if rows == 0:
-        _fail(f"{log}: no complete SYNC cycle decoded ({report.frames} frames, {report.incomplete} "
+        fail(f"{log}: no complete SYNC cycle decoded ({report.frames} frames, {report.incomplete} "
               "incomplete cycles); wrong EDS/DCF mapping or not a log of this vehicle?")
     if not meta:
         from dataclasses import asdict
@@ -184,15 +190,6 @@ def decode(
                      "(qomni identify needs the campaign's step names)"))
 
 
-_MASTER_FUNCTIONS = {0x0, 0x4, 0x6, 0x8, 0xA, 0xC}      # NMT, RPDO1…4, SDO request (COB-ID >> 7)
-
-
-def _sent_by_master(msg) -> bool:
-    """CiA 301 pre-defined connection set: NMT, SYNC, RPDOs and SDO requests come from the master."""
-    cob = msg.arbitration_id
-    return not msg.is_extended_id and (cob == 0x80 or (cob >> 7) in _MASTER_FUNCTIONS)
-
-
 @app.command()
 def replay(
     log: Path = typer.Argument(..., help="Bus log: .blf, .asc, .log (candump -L), .csv, .trc, .mf4."),
@@ -204,22 +201,24 @@ def replay(
 ):
     """Replay a recorded log onto a bus (python-can LogReader + MessageSync)."""
     from qomni.hil.bus import open_bus
-    from qomni.hil.recorder import replay as replay_log
+    from qomni.hil.recorder import replay as replay_log, sent_by_master
 
     try:
         target = open_bus(bus)
     except (ValueError, OSError) as exc:
-        _fail(f"cannot open bus {bus!r}: {exc}")
+        fail(f"cannot open bus {bus!r}: {exc}")
     except Exception as exc:                                         # noqa: BLE001 - can.CanError & co
-        _fail(f"cannot open bus {bus!r}: {exc}")
+        fail(f"cannot open bus {bus!r}: {exc}")
     started = time.perf_counter()
     try:
-        sent = replay_log(log, target, realtime=not fast, only=_sent_by_master if master_only else None)
+        sent = replay_log(log, target, realtime=not fast, only=sent_by_master if master_only else None)
     except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except KeyboardInterrupt:
         sent = None
     finally:
         target.shutdown()
     if sent is not None:
         console.print(f"replayed {sent} frames from {log} onto {bus} in {time.perf_counter() - started:.1f} s")
+
+

@@ -1,0 +1,3 @@
+from qomni.cli import main
+
+main()

@@ -1,0 +1,209 @@
+"""``qomni campaign``, ``single-axis``, ``identify``, ``validate`` and ``compare``."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from .app import app
+from .console import console, fail, guarded, run_with_progress
+from .loaders import load_datasheet, load_description, load_effects, load_faults, vehicle_link
+
+BUS_LOG = "bus.blf"
+
+
+@app.command()
+def campaign(
+    out: Path = typer.Option(..., "--out", help="Run directory to create."),
+    bus: Optional[str] = typer.Option(None, help="Bus of a real or external vehicle, e.g. "
+                                      "'socketcan:can0'. Default: the embedded emulator."),
+    vehicle: Optional[Path] = typer.Option(None, help="Vehicle description TOML (emulator) / data sheet."),
+    datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
+    seed: int = typer.Option(0, help="Seed of the embedded emulator's noise."),
+    quick: bool = typer.Option(False, help="Short campaign (≈ 35 s emulated) for smoke tests."),
+    single_axis: Optional[bool] = typer.Option(
+        None, "--single-axis/--no-single-axis",
+        help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
+             "emulator; with --bus the vehicle must be lifted, so run 'qomni single-axis' instead)."),
+    gui: bool = typer.Option(False, help="Show the PyBullet GUI (needs a display)."),
+    faults: Optional[Path] = typer.Option(
+        None, help="Fault plan (TOML, hil/faults.py) injected into the embedded emulator during the "
+                   "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
+                   "--faults'."),
+    effects: Optional[Path] = typer.Option(
+        None, help="Effects file (TOML, docs/effects.md) for the embedded emulator: the ideal vehicle "
+                   "plus the effects it lists. Default: the prototype as described."),
+):
+    """Run the four-step campaign and the lane change, then identify and validate."""
+    from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
+
+    sheet = load_datasheet(vehicle, datasheet)
+    if faults is not None and bus is not None:
+        fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
+              "serving the vehicle on --bus")
+    fault_plan = load_faults(faults)
+    if (out / "signals.csv").exists():
+        fail(f"{out} already holds a campaign; choose a new --out")
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    if single_axis is None:
+        single_axis = bus is None
+    if effects is not None and bus is not None:
+        fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
+    effect_set = load_effects(effects)
+    if single_axis:
+        _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
+    settings = CampaignSettings.quick() if quick else CampaignSettings()
+    source = bus or "embedded emulator (virtual CAN bus)"
+    try:
+        run = Campaign(sheet, out, settings, source=source)
+    except ValueError as exc:
+        fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
+    try:
+        with vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG, effect_set,
+                           faults=fault_plan) as link:
+            run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
+    except CampaignAborted as exc:
+        fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
+    from qomni.hil.dbc import write_dbc
+
+    write_dbc(out / "bus.dbc")  # decodes bus.blf in CANoe, cantools, candump-based tools
+    rect = json.loads((out / "metadata.json").read_text())["occupied_rectangle"]
+    console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
+                  f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
+    _identify_and_report(out)
+    console.print(f"total wall time {time.perf_counter() - started:.1f} s")
+
+
+def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=None) -> None:
+    from qomni.ident.campaign import CampaignAborted
+    from qomni.ident.single_axis import (SINGLE_AXIS_DIR, identify_single_axis, plan_single_axis,
+                                   run_single_axis)
+
+    (out / SINGLE_AXIS_DIR).mkdir(parents=True, exist_ok=True)
+    trajectories = plan_single_axis()
+    try:
+        with vehicle_link(bus, vehicle, sheet, seed, True, gui,
+                           out / SINGLE_AXIS_DIR / BUS_LOG, effects) as link:
+            run_with_progress("single axis",
+                               lambda cb: run_single_axis(link, sheet, out, trajectories, on_progress=cb))
+    except CampaignAborted as exc:
+        fail(f"single-axis run aborted; recorded data kept in {out / SINGLE_AXIS_DIR}: {exc}")
+    result = identify_single_axis(out, sheet)
+    pooled, std = result.pooled, result.pooled_std
+    console.print("single-axis (lifted): " + ", ".join(
+        f"{n} = {pooled[n]:.4g} ± {std[n]:.2g}" for n in ("B_w", "d_vw", "d_cw")))
+
+
+@app.command("single-axis")
+def single_axis_command(
+    out: Path = typer.Option(..., "--out", help="Run directory (created or reused before 'campaign')."),
+    bus: Optional[str] = typer.Option(None, help="Bus of the lifted vehicle; default: embedded emulator."),
+    vehicle: Optional[Path] = typer.Option(None, help="Vehicle description / data sheet TOML."),
+    datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
+    seed: int = typer.Option(0, help="Seed of the embedded emulator's noise."),
+    gui: bool = typer.Option(False, help="Show the PyBullet GUI."),
+):
+    """Identify B_w, d_vw, d_cw per wheel on the lifted vehicle (wheels free)."""
+    sheet = load_datasheet(vehicle, datasheet)
+    out.mkdir(parents=True, exist_ok=True)
+    _single_axis(out, bus, vehicle, sheet, seed, gui)
+
+
+def _identify_and_report(run_dir: Path) -> None:
+    from qomni.ident.identify import identify_run, validate_run
+
+    result = guarded(lambda: identify_run(run_dir))
+    _print_parameters(result)
+    validation = guarded(lambda: validate_run(run_dir))
+    _print_validation(validation)
+    _plots(run_dir, result, validation)
+
+
+def _print_parameters(result) -> None:
+    from qomni.conventions import PARAMETER_UNITS
+
+    table = Table(title="Identified parameters (paper Table 2)")
+    for col in ("Name", "Value", "Std. deviation", "Unit"):
+        table.add_column(col, justify="right" if col in ("Value", "Std. deviation") else "left")
+    for name, value in result.values.items():
+        table.add_row(name, f"{value:.4f}", f"{result.std[name]:.4f}", PARAMETER_UNITS[name])
+    table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"])
+    console.print(table)
+    console.print(f"cond(Θ̂₁ᵀΘ̂₁) = {result.condition_number:.2f}  (paper: 11.56)")
+
+
+def _print_validation(validation) -> None:
+    table = Table(title="Validation on the lane change (mode 2, not used for fitting)")
+    table.add_column("Channel")
+    table.add_column("NRMSE", justify="right")
+    table.add_column("RMS error", justify="right")
+    table.add_column("NRMSE, moving rows", justify="right")
+    moving = validation.moving
+    for channel, value in validation.nrmse.items():
+        m = moving.get(channel, {})
+        cell = (f"{100 * m['nrmse']:.1f} % ({m['n_rows']} rows)" if m.get("nrmse") is not None
+                else "no moving rows")
+        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell)
+    console.print(table)
+
+
+def _plots(run_dir: Path, result, validation) -> None:
+    from qomni.ident.identify import identification_blocks, load_run, validation_blocks
+    from qomni.ident.plots import torque_comparison
+
+    signals, sheet, _ = load_run(run_dir)
+    times = {name: signals.of_step(name).time for name in signals.steps()}
+    torque_comparison(identification_blocks(signals, sheet), times, result,
+                      run_dir / "fig5_identification.png",
+                      "Identification experiment: generalized torques (cf. paper Fig. 5)")
+    torque_comparison(validation_blocks(signals, sheet), times, result,
+                      run_dir / "fig6_validation.png",
+                      "Validation experiment (lane change): generalized torques (cf. paper Fig. 6)",
+                      nrmse=validation.nrmse)
+
+
+@app.command()
+def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campaign.")):
+    """Identify the parameters from a recorded campaign (writes identification.json)."""
+    from qomni.ident.identify import identify_run
+
+    _print_parameters(guarded(lambda: identify_run(run_dir)))
+    console.print(f"written {run_dir / 'identification.json'}")
+
+
+@app.command()
+def validate(run_dir: Path = typer.Argument(..., help="Run directory with identification.json.")):
+    """Validate identification.json on the recorded lane change (writes validation.json, plots)."""
+    from qomni.ident.identify import load_identification, validate_run
+
+    validation = guarded(lambda: validate_run(run_dir))
+    _print_validation(validation)
+    _plots(run_dir, guarded(lambda: load_identification(run_dir)), validation)
+    console.print(f"written {run_dir / 'validation.json'}")
+
+
+@app.command()
+def compare(
+    run_dir: Path = typer.Argument(..., help="Run directory with identification.json."),
+    vehicle: Optional[Path] = typer.Option(None, help="The emulated vehicle's description (truth); "
+                                           "default: the prototype."),
+):
+    """Compare identified parameters with the emulator's truth (a separate step, never an input)."""
+    from qomni.compare import compare_with_truth
+
+    report = guarded(lambda: compare_with_truth(run_dir, load_description(vehicle)))
+    table = Table(title=f"Identified vs. true ({report['vehicle']})")
+    for col in ("Name", "Identified", "Std", "True", "Rel. error", "Error / σ"):
+        table.add_column(col, justify="left" if col == "Name" else "right")
+    for name, row in report["parameters"].items():
+        table.add_row(name, f"{row['identified']:.4f}", f"{row['std']:.4f}", f"{row['true']:.4f}",
+                      f"{100 * row['relative_error']:+.2f} %", f"{row['error_in_std']:+.2f}")
+    console.print(table)
+    console.print(f"written {run_dir / 'comparison.json'}")
+
+

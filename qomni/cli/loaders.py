@@ -1,0 +1,68 @@
+"""The CLI's readers of user files (data sheet, vehicle description, effects, fault plan) and the vehicle
+link: each a bad file ends the command with the reader's message (:func:`qomni.cli.console.fail`)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+from .console import fail
+
+
+def load_datasheet(vehicle: Optional[Path], datasheet: Optional[Path]):
+    """The :class:`~qomni.ident.datasheet.DataSheet` of ``datasheet`` or ``vehicle`` (default: the prototype's)."""
+    from qomni.ident.datasheet import DataSheet, DataSheetError
+
+    try:
+        return DataSheet.load(datasheet or vehicle)
+    except (DataSheetError, FileNotFoundError) as exc:
+        fail(str(exc))
+
+
+def load_description(vehicle: Optional[Path]):
+    """The emulator's :class:`~qomni.emulator.description.VehicleDescription` (default: the prototype)."""
+    from qomni.emulator.description import DescriptionError, VehicleDescription
+
+    try:
+        return VehicleDescription.load(vehicle)
+    except (DescriptionError, FileNotFoundError) as exc:
+        fail(str(exc))
+
+
+def load_effects(path: Optional[Path]):
+    """The effects file's :class:`~qomni.emulator.effects.EffectSet`, or None (the vehicle as described)."""
+    if path is None:
+        return None
+    from qomni.emulator.effects import EffectSet, EffectsError
+
+    try:
+        return EffectSet.load(path)
+    except (EffectsError, FileNotFoundError) as exc:
+        fail(str(exc))
+
+
+def load_faults(path: Optional[Path]):
+    """The :class:`~qomni.hil.faults.FaultPlan` of ``path``, or None."""
+    if path is None:
+        return None
+    from qomni.hil.faults import FaultPlan, FaultPlanError
+
+    try:
+        return FaultPlan.load(path)
+    except (FaultPlanError, FileNotFoundError) as exc:
+        fail(str(exc))
+
+
+def vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, lifted: bool,
+                  gui: bool, record: Path, effects=None, faults=None):
+    """Context manager yielding a connected client: embedded emulator or the vehicle on ``bus``."""
+    record = [record, record.with_suffix(".log")]         # BLF and candump -L
+    if bus is None:
+        from qomni.embedded import embedded_vehicle
+
+        return embedded_vehicle(load_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
+                                effects=effects,
+                                faults=faults)
+    from qomni.hil.client import VehicleClient
+
+    return VehicleClient.from_drive(sheet.drive, bus, record=record)
+
