@@ -1,6 +1,12 @@
-"""The one rule of architecture: the emulator stands in for the hardware, so ``ident``, ``fmu`` and the
-gap ``diagnosis`` never import ``emulator`` — not directly, and not through anything they import (hil.client included)."""
+"""The architecture's boundaries (docs/architecture.md).
+
+The one rule: the emulator stands in for the hardware, so ``qomni.ident``, ``qomni.fmu`` and
+``qomni.diagnosis`` never import ``qomni.emulator`` — not directly, and not through anything they import.
+Beyond it, each package depends only on the packages the architecture names, the shared vocabulary is a leaf,
+and no two modules import each other in a circle.
+"""
 import ast
+import graphlib
 import subprocess
 import sys
 from pathlib import Path
@@ -8,22 +14,92 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("emulator", "hil", "ident", "fmu", "diagnosis")
+#: The package-level arrows: who may import whom (besides itself). ``qomni.conventions`` is the leaf
+#: vocabulary; the composition root (``qomni.*`` other than the leaves) may import everything.
+ALLOWED = {
+    "conventions": set(),
+    "emulator": {"conventions"},
+    "hil": {"conventions"},
+    "ident": {"conventions"},
+    "fmu": {"conventions", "ident", "hil"},
+    "diagnosis": {"conventions", "ident"},
+}
+LEAVES = {"conventions"}
 
 
-@pytest.mark.parametrize("package", ["ident", "fmu", "diagnosis"])
-def test_no_module_mentions_emulator_in_an_import(package):
+def _modules():
+    """{dotted module name: path} of every project module under the qomni namespace."""
+    found = {}
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            found[".".join(["qomni", *parts])] = path
+    for path in (ROOT / "qomni").rglob("*.py"):
+        parts = [p for p in path.relative_to(ROOT).with_suffix("").parts if p != "__init__"]
+        found[".".join(parts)] = path
+    return found
+
+
+def _imports(name: str, path: Path, *, top_level_only: bool):
+    """Project modules that ``name`` imports (absolute and relative), optionally only at module level."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    nodes = tree.body if top_level_only else list(ast.walk(tree))
+    out = []
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            out.append((module, node.lineno))
+            out += [(f"{module}.{a.name}", node.lineno) for a in node.names]     # submodules imported by name
+    return [(m, line) for m, line in out if m.split(".")[0] in ("qomni", *PACKAGES)]
+
+
+def _area(module: str) -> str | None:
+    """The architectural area of a qomni module: a package, a leaf, or None for the composition root."""
+    parts = module.split(".")
+    if parts[0] != "qomni" or len(parts) < 2:
+        return None
+    return parts[1] if parts[1] in PACKAGES or parts[1] in LEAVES else None
+
+
+@pytest.mark.parametrize("package", PACKAGES + tuple(LEAVES))
+def test_each_package_imports_only_what_the_architecture_allows(package):
+    modules = _modules()
     offenders = []
-    for path in (ROOT / package).rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.level == 0:
-                names = [node.module or ""]
-            offenders += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names
-                          if n in ("emulator", "qomni.emulator") or n.startswith(("emulator.", "qomni.emulator."))
-                          or (n == "qomni" and any(a.name == "emulator" for a in node.names))]
-    assert not offenders
+    for name, path in modules.items():
+        if _area(name) != package:
+            continue
+        for imported, line in _imports(name, path, top_level_only=False):
+            where = f"{path.relative_to(ROOT)}:{line}"
+            parts = imported.split(".")
+            if parts[0] != "qomni":
+                offenders.append(f"{where}: bare import {imported!r} (write qomni.{imported})")
+            elif len(parts) > 1 and _area(imported) is None:
+                offenders.append(f"{where}: imports the composition root ({imported})")
+            elif _area(imported) not in (None, package, *ALLOWED[package]):
+                offenders.append(f"{where}: {package} -> {_area(imported)} ({imported})")
+    assert not offenders, "\n".join(offenders)
+
+
+def test_no_import_circle_between_modules():
+    """Module-level imports form no cycle (lazy imports inside functions are how the root defers work)."""
+    modules = _modules()
+    graph = {}
+    for name, path in modules.items():
+        deps = {m for m, _ in _imports(name, path, top_level_only=True) if m in modules and m != name}
+        graph[name] = {d for d in deps if not name.startswith(d + ".")}   # a package's own __init__
+    try:
+        tuple(graphlib.TopologicalSorter(graph).static_order())
+    except graphlib.CycleError as exc:
+        pytest.fail(f"import circle: {' -> '.join(exc.args[1])}")
 
 
 def test_importing_every_module_of_ident_fmu_and_diagnosis_loads_no_emulator():
