@@ -1,5 +1,5 @@
 """Co-simulating the plant FMU from Python with fmpy (FMI 2.0 or 3.0): a version-neutral slave wrapper and
-an adapter that makes the plant look like the vehicle (:class:`hil.measurement.VehicleInterface`), so the
+an adapter that makes the plant look like the vehicle (:class:`qomni.vehicle_interface.VehicleInterface`), so the
 campaign controller (:class:`ident.controller.StepController`) drives the FMU exactly as it drives the
 vehicle over CAN.
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qomni.hil.measurement import Measurement
+from qomni.vehicle_interface import Measurement
 from qomni.ident.symbolic import WHEELS
 
 MOTOR_TORQUE = tuple(f"motor_torque.{w}" for w in WHEELS)
@@ -128,7 +128,7 @@ class FmuSlave:
 
 
 class PlantVehicle:
-    """The plant FMU as a :class:`hil.measurement.VehicleInterface`: ``exchange(u)`` returns the sample at
+    """The plant FMU as a :class:`qomni.vehicle_interface.VehicleInterface`: ``exchange(u)`` returns the sample at
     the start of the cycle (motor positions and velocities, steering angles, the torque u applied from
     this instant) and advances the FMU by ``cycle_time``. Sensors are ideal (no quantization or noise).
 

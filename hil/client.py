@@ -37,7 +37,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from .bus import open_bus
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
-from .measurement import Measurement
+from qomni.vehicle_interface import Measurement
 from .pdo_codec import PdoCodec, build_codec, encode_entry
 from .recorder import BusRecorder
 
@@ -65,7 +65,7 @@ class DriveFaultError(CommunicationError):
     """A drive is no longer OPERATION ENABLED (fault, e.g. after a SYNC timeout, or quick stop).
 
     Attributes:
-        measurement: the :class:`~hil.measurement.Measurement` of the cycle that revealed it.
+        measurement: the :class:`~qomni.vehicle_interface.Measurement` of the cycle that revealed it.
         states: {node id: CiA 402 state name} of the drives not in OPERATION ENABLED.
     """
 
@@ -246,7 +246,7 @@ class VehicleClient:
             motor_torque: (4,) N m motor side, order fl, rl, fr, rr; sent as per mille of the rated
                 torque (rounded), clipped to ±0x6072.
         Returns:
-            The :class:`~hil.measurement.Measurement` sampled at this SYNC.
+            The :class:`~qomni.vehicle_interface.Measurement` sampled at this SYNC.
         Raises:
             ValueError: wrong shape or non-finite torque.
             CommunicationError: not connected, or not all TPDOs arrived within ``timeout``.

@@ -1,4 +1,4 @@
-"""Decode a recorded CAN log of the vehicle into one :class:`~hil.measurement.Measurement` per SYNC.
+"""Decode a recorded CAN log of the vehicle into one :class:`~qomni.vehicle_interface.Measurement` per SYNC.
 
 Works on any log python-can reads (:class:`can.LogReader`: Vector BLF ``.blf`` and ASC ``.asc``,
 candump ``-L`` ``.log``, ``.csv``, PEAK ``.trc``, ``.mf4``), recorded by ``hil.client`` or by other tools,
@@ -34,7 +34,7 @@ from canopen import objectdictionary as od
 
 from .dbc import enabled_pdos, reset_values
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
-from .measurement import Measurement
+from qomni.vehicle_interface import Measurement
 from .pdo_codec import PdoCodec, PdoMappingError, build_codec
 from .units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
 

@@ -14,9 +14,11 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
+
+from qomni.vehicle_interface import VehicleInterface
 
 from . import excitation, kinematics
 from .controller import ControllerSettings, StepController, quintic_alignment
@@ -28,14 +30,6 @@ IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
 METADATA = "metadata.json"
 SIGNALS = "signals.csv"
-
-
-class VehicleLink(Protocol):
-    """What the campaign needs from a vehicle (``hil.client.VehicleClient`` satisfies it)."""
-
-    def exchange(self, motor_torque: np.ndarray): ...
-
-    def stop(self) -> None: ...
 
 
 class CampaignAborted(RuntimeError):
@@ -185,7 +179,7 @@ class Campaign:
         ts = self.sheet.drive.cycle_time
         return sum(_cycles(seg, ts) for seg in self.segments)
 
-    def run(self, vehicle: VehicleLink) -> dict:
+    def run(self, vehicle: VehicleInterface) -> dict:
         """Execute all segments on ``vehicle`` (connected, drives enabled); returns the metadata
         written to ``metadata.json``.
 

@@ -15,7 +15,9 @@ from typing import Callable
 import numpy as np
 
 from . import filtering
-from .campaign import METADATA, SIGNALS, CampaignAborted, VehicleLink
+from qomni.vehicle_interface import VehicleInterface
+
+from .campaign import METADATA, SIGNALS, CampaignAborted
 from .control_design import design_pd
 from .datasheet import DataSheet
 from .estimation import SingleAxisResult, estimate_single_axis
@@ -35,7 +37,7 @@ def plan_single_axis(duration: float = 8.0, beta_max: float = 40.0, beta_dot_max
                                       seed=seed + i) for i in range(4)]
 
 
-def run_single_axis(vehicle: VehicleLink, sheet: DataSheet, run_dir: str | Path, trajectories,
+def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | Path, trajectories,
                     on_progress: Callable[[int, int, str], None] | None = None) -> Path:
     """Drive the lifted vehicle's wheels along ``trajectories`` (from :func:`plan_single_axis`, planned
     before connecting: drives fault when SYNCs pause) and record into ``run_dir/single_axis``.

@@ -183,7 +183,7 @@ class FakeVehicle:
         if self.cycles == self.fail_after:
             raise self.exc
         self.cycles += 1
-        from qomni.hil.measurement import Measurement
+        from qomni.vehicle_interface import Measurement
 
         return Measurement(time=self.cycles * 0.002, motor_position=np.zeros(4),
                            motor_velocity=np.zeros(4), motor_torque=np.asarray(motor_torque, float),

@@ -9,7 +9,7 @@ pytest.importorskip("fmpy")
 
 from qomni.fmu.cosim import PlantVehicle, run_campaign_closed_loop  # noqa: E402
 from qomni.fmu.export import export_plant_fmu  # noqa: E402
-from qomni.hil.measurement import VehicleInterface  # noqa: E402
+from qomni.vehicle_interface import VehicleInterface  # noqa: E402
 from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP, CampaignSettings  # noqa: E402
 from qomni.ident.datasheet import DataSheet  # noqa: E402
 from test_fmu_plant import identification  # noqa: E402

@@ -12,7 +12,7 @@ import pytest
 
 from qomni.hil.client import CommunicationError, DriveFaultError, VehicleClient
 from qomni.hil.drive402 import PowerState
-from qomni.hil.measurement import Measurement, VehicleInterface
+from qomni.vehicle_interface import Measurement, VehicleInterface
 from qomni.hil.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
@@ -196,7 +196,7 @@ def test_deterministic_round_trip():
     assert np.array_equal(a, b) and np.array_equal(ta, tb)
 
 
-@pytest.mark.parametrize("module", ["qomni.hil", "qomni.hil.client", "qomni.hil.server", "qomni.hil.bus", "qomni.hil.measurement"])
+@pytest.mark.parametrize("module", ["qomni.hil", "qomni.hil.client", "qomni.hil.server", "qomni.hil.bus", "qomni.vehicle_interface"])
 def test_hil_does_not_import_emulator(module):
     code = (f"import sys, {module}; bad = [m for m in sys.modules if m.split('.')[:2] == ['qomni', 'emulator']];"
             f"assert not bad, bad")

@@ -1,8 +1,10 @@
-"""What a master gets from the vehicle each cycle, in SI units, and the interface every vehicle offers.
+"""The vehicle interface: what a master gets from the vehicle each cycle (:class:`Measurement`, SI units)
+and what every vehicle offers (:class:`VehicleInterface`).
 
-The CAN client (:class:`hil.client.VehicleClient`) and any in-process adapter satisfy
-:class:`VehicleInterface`, so the identification campaign runs unchanged against either.
-Import-light (numpy only). Frames, orders and units: docs/conventions.md.
+The seam between the campaign and whatever vehicle it drives: the CAN client
+(:class:`qomni.hil.client.VehicleClient`), the plant FMU's adapter (:class:`qomni.fmu.cosim.PlantVehicle`)
+or any in-process adapter satisfy :class:`VehicleInterface`, so the identification campaign runs unchanged
+against each. A leaf module (numpy only). Frames, orders and units: docs/conventions.md.
 """
 from __future__ import annotations
 
