@@ -196,7 +196,7 @@ class StepController:
 def quintic_alignment(alpha_from, alpha_to, duration: float, name: str = "align") -> ExcitationStep:
     """Mode-1 wheel alignment at rest: α moves from ``alpha_from`` to ``alpha_to`` (2,) [rad] on a
     quintic (rest to rest) in ``duration`` s; the chassis stays where it is."""
-    from .excitation import AnalyticTrajectory
+    from .fourier import AnalyticTrajectory
 
     def make(a0: float, a1: float):
         def f(tau):

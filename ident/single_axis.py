@@ -21,7 +21,7 @@ from .campaign import METADATA, SIGNALS, CampaignAborted
 from .control_design import design_pd
 from .datasheet import DataSheet
 from .estimation import SingleAxisResult, estimate_single_axis
-from .excitation import design_fourier_trajectory
+from .fourier import design_fourier_trajectory
 from .identify import SINGLE_AXIS_JSON, applied_torque_at_samples, correlation_lag
 from .recording import SignalWriter, read_signals
 

@@ -1,4 +1,4 @@
-"""Tests for ident.excitation (paper section 6.2)."""
+"""Tests for ident.fourier (rest-to-rest Fourier design) and ident.excitation (the paper's steps, section 6.2)."""
 
 import math
 import time
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from qomni.ident import excitation as ex
+from qomni.ident import fourier
 
 L, B, A = 1.2, 0.9, 0.08
 
@@ -17,7 +18,7 @@ def _dense(tr, n=30001):
 
 
 def test_fourier_rest_to_rest_and_derivatives():
-    tr = ex.design_fourier_trajectory(duration=3.0, q_min=-0.5, q_max=0.5, qd_max=1.0, qdd_max=5.0, seed=7)
+    tr = fourier.design_fourier_trajectory(duration=3.0, q_min=-0.5, q_max=0.5, qd_max=1.0, qdd_max=5.0, seed=7)
     t, q, qd, qdd = _dense(tr)
     assert abs(q[0]) < 1e-12 and abs(q[-1]) < 1e-9
     for v in (qd[0], qd[-1], qdd[0], qdd[-1]):
@@ -33,18 +34,18 @@ def test_fourier_rest_to_rest_and_derivatives():
 
 def test_fourier_rejects_coefficients_not_at_rest():
     with pytest.raises(ValueError, match="rest conditions"):
-        ex.FourierTrajectory(omega_f=1.0, a=[1.0, 0.0], b=[0.0, 0.0])
-    a, b = ex.FourierTrajectory.project_to_rest([1.0, 0.3, -0.2], [0.5, 0.1, 0.4])
-    tr = ex.FourierTrajectory.from_start(2.0, a, b, q_start=0.2)
+        fourier.FourierTrajectory(omega_f=1.0, a=[1.0, 0.0], b=[0.0, 0.0])
+    a, b = fourier.FourierTrajectory.project_to_rest([1.0, 0.3, -0.2], [0.5, 0.1, 0.4])
+    tr = fourier.FourierTrajectory.from_start(2.0, a, b, q_start=0.2)
     assert abs(tr.position(0.0) - 0.2) < 1e-12 and abs(tr.position(tr.duration) - 0.2) < 1e-12
-    back = ex.FourierTrajectory.from_json_dict(tr.to_json_dict())
+    back = fourier.FourierTrajectory.from_json_dict(tr.to_json_dict())
     assert np.array_equal(back.a, tr.a) and np.array_equal(back.b, tr.b) and back.q0 == tr.q0
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.3])
 def test_design_respects_limits(offset):
     lim = dict(q_min=-0.6 + offset, q_max=0.6 + offset, qd_max=0.8, qdd_max=3.0)
-    tr = ex.design_fourier_trajectory(duration=2.5, q_start=offset, seed=3, **lim)
+    tr = fourier.design_fourier_trajectory(duration=2.5, q_start=offset, seed=3, **lim)
     _, q, qd, qdd = _dense(tr)
     assert q.min() >= lim["q_min"] - 1e-9 and q.max() <= lim["q_max"] + 1e-9
     assert np.max(np.abs(qd)) <= lim["qd_max"] + 1e-9
@@ -62,19 +63,19 @@ def test_design_respects_limits(offset):
 def test_design_deterministic_and_fast():
     kw = dict(duration=15.0, q_min=-1.0, q_max=1.0, qd_max=1.0, qdd_max=4.0)
     t0 = time.perf_counter()
-    a = ex.design_fourier_trajectory(seed=11, **kw)
+    a = fourier.design_fourier_trajectory(seed=11, **kw)
     assert time.perf_counter() - t0 < 1.0
-    b = ex.design_fourier_trajectory(seed=11, **kw)
-    c = ex.design_fourier_trajectory(seed=12, **kw)
+    b = fourier.design_fourier_trajectory(seed=11, **kw)
+    c = fourier.design_fourier_trajectory(seed=12, **kw)
     assert np.array_equal(a.a, b.a) and np.array_equal(a.b, b.b)
     assert not np.allclose(a.a, c.a)
 
 
 def test_design_invalid_limits():
     with pytest.raises(ValueError):
-        ex.design_fourier_trajectory(duration=2.0, q_min=0.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
+        fourier.design_fourier_trajectory(duration=2.0, q_min=0.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
     with pytest.raises(ValueError):
-        ex.design_fourier_trajectory(duration=2.0, q_min=-1.0, q_max=1.0, qd_max=0.0, qdd_max=1.0)
+        fourier.design_fourier_trajectory(duration=2.0, q_min=-1.0, q_max=1.0, qd_max=0.0, qdd_max=1.0)
 
 
 def test_campaign_steps():
