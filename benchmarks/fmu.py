@@ -30,7 +30,7 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirna
 
 from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave  # noqa: E402
 from qomni.fmu.export import export_plant_fmu  # noqa: E402
-from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
 
 H = 0.002
@@ -41,7 +41,7 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Real
 
 from qomni.fmu import plant_reference as R
-from qomni.ident.datasheet import Geometry
+from qomni.datasheet import Geometry
 
 P = np.array({p})
 

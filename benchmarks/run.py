@@ -85,7 +85,7 @@ def lockstep_cycle(description: VehicleDescription, cycles: int) -> float:
 def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float]:
     """(emulated s, wall s) of a lock-step campaign against the embedded emulator over CAN."""
     from qomni.ident.campaign import Campaign, CampaignSettings
-    from qomni.ident.datasheet import DataSheet
+    from qomni.datasheet import DataSheet
     from qomni.embedded import embedded_vehicle
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -33,7 +33,7 @@ from scipy import ndimage
 
 from qomni.ident import filtering, kinematics, odometry
 from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from qomni.ident.estimation import IdentificationResult
 from qomni.ident.identify import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, generalized_signals,
                             model_alpha, step_blocks, StepSignals)

@@ -1,40 +1,23 @@
 """Vehicle description: the TOML file the emulator is built from.
 
-A description holds the data sheet ([geometry], [drive], [nominal]) and the emulator-only physics
-([truth], [body], [noise]). See ``emulator/data/prototype.toml`` for the default vehicle and
+A description embeds the data sheet ([vehicle], [geometry], [drive], [nominal]; read by
+:class:`qomni.datasheet.DataSheet`, the one definition of those sections) and adds the emulator-only
+physics ([truth], [body], [noise]). See ``emulator/data/prototype.toml`` for the default vehicle and
 ``docs/conventions.md`` for frames and units.
 """
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 
 
+from qomni.datasheet import DataSheet, DataSheetError, Drive, Geometry
+
 
 class DescriptionError(ValueError):
     """A vehicle description file is missing a key, has a wrong type or an impossible value."""
-
-
-@dataclass(frozen=True)
-class Geometry:
-    l: float
-    b: float
-    a: float
-    r: float
-    steering_limit: float
-
-
-@dataclass(frozen=True)
-class Drive:
-    i_G: float
-    rated_torque: float
-    max_torque: float
-    encoder_increments: int
-    steering_sensor_bits: int
-    cycle_time: float
 
 
 @dataclass(frozen=True)
@@ -74,13 +57,26 @@ class Noise:
 
 @dataclass(frozen=True)
 class VehicleDescription:
-    name: str
-    geometry: Geometry
-    drive: Drive
+    """An emulated vehicle: its data sheet (what an engineer knows) and its truth, body and noise (what
+    only the emulator knows)."""
+
+    datasheet: DataSheet
     truth: Truth
     body: Body
     noise: Noise
     source: str
+
+    @property
+    def name(self) -> str:
+        return self.datasheet.name
+
+    @property
+    def geometry(self) -> Geometry:
+        return self.datasheet.geometry
+
+    @property
+    def drive(self) -> Drive:
+        return self.datasheet.drive
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> "VehicleDescription":
@@ -100,10 +96,12 @@ class VehicleDescription:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise DescriptionError(f"{source}: not valid TOML: {exc}") from exc
+        try:
+            datasheet = DataSheet.loads(text, source=source)
+        except DataSheetError as exc:
+            raise DescriptionError(str(exc)) from exc
         desc = cls(
-            name=str(data.get("vehicle", {}).get("name", Path(source).stem)),
-            geometry=_section(data, "geometry", Geometry, source),
-            drive=_section(data, "drive", Drive, source),
+            datasheet=datasheet,
             truth=_section(data, "truth", Truth, source),
             body=_section(data, "body", Body, source),
             noise=_section(data, "noise", Noise, source),
@@ -113,10 +111,8 @@ class VehicleDescription:
         return desc
 
     def _check(self) -> None:
-        g, t, bd = self.geometry, self.truth, self.body
+        t, bd = self.truth, self.body
         positive = {
-            "geometry.l": g.l, "geometry.b": g.b, "geometry.r": g.r, "drive.i_G": self.drive.i_G,
-            "drive.rated_torque": self.drive.rated_torque, "drive.cycle_time": self.drive.cycle_time,
             "truth.m_ch": t.m_ch, "truth.C_ch": t.C_ch, "truth.C_l": t.C_l, "truth.C_r": t.C_r,
             "truth.B_w": t.B_w, "body.wheel_mass": bd.wheel_mass,
         }
@@ -126,12 +122,6 @@ class VehicleDescription:
         for key in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw"):
             if getattr(t, key) < 0:
                 raise DescriptionError(f"{self.source}: truth.{key} must be >= 0")
-        if not 0 <= g.a < g.b / 2:
-            raise DescriptionError(f"{self.source}: geometry.a must be in [0, b/2), got {g.a}")
-        if not 0 < g.steering_limit <= math.pi / 2 + 1e-9:
-            raise DescriptionError(f"{self.source}: geometry.steering_limit must be in (0, π/2]")
-        if self.drive.max_torque < self.drive.rated_torque:
-            raise DescriptionError(f"{self.source}: drive.max_torque must be >= drive.rated_torque")
         unit_mass = 4 * (bd.steering_unit_mass + bd.wheel_mass)
         if unit_mass >= t.m_ch:
             raise DescriptionError(

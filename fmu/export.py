@@ -55,7 +55,7 @@ from qomni.ident.symbolic import COORDINATE_NAMES
 from . import codegen
 
 if TYPE_CHECKING:  # pragma: no cover
-    from qomni.ident.datasheet import DataSheet
+    from qomni.datasheet import DataSheet
     from qomni.ident.estimation import IdentificationResult
 
 DEFAULT_MODEL_IDENTIFIER = "qomni_feedforward"

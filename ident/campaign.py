@@ -22,7 +22,7 @@ from qomni.vehicle_interface import VehicleInterface
 
 from . import excitation, kinematics
 from .controller import ControllerSettings, StepController, quintic_alignment
-from .datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .recording import SignalWriter
 

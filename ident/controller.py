@@ -18,7 +18,7 @@ import numpy as np
 
 from . import dynamics, kinematics, odometry
 from .control_design import DifferentiatorFilter, design_pd, design_pid
-from .datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 
 CHASSIS_COORDINATE = {2: "x_ch", 3: "y_ch", 4: "gamma_ch"}

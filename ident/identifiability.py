@@ -163,7 +163,7 @@ def analyse(modes, geometry=None, n_samples: int = 200, seed: int = 0, eps: floa
     stacked, analysed by :func:`independent_parameters`. ``geometry`` defaults to the packaged
     prototype data sheet; ``eps = 0`` uses sign() for Coulomb friction."""
     if geometry is None:
-        from qomni.ident.datasheet import DataSheet
+        from qomni.datasheet import DataSheet
         geometry = DataSheet.load().geometry
     rng = np.random.default_rng(seed)
     theta = np.vstack([random_regressor(m, geometry, n_samples, rng, eps=eps) for m in modes])

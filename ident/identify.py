@@ -21,7 +21,7 @@ import numpy as np
 
 from . import dynamics, filtering, kinematics, odometry
 from .campaign import IDENTIFICATION_STEPS, METADATA, SIGNALS, VALIDATION_STEP
-from .datasheet import DataSheet, Drive, Geometry, Nominal
+from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
 from .estimation import PARAMETER_NAMES, IdentificationResult, RegressorBlock, estimate
 from .recording import Signals, read_signals
 from .validation import ValidationResult, compare_generalized_torques

@@ -15,7 +15,7 @@ from functools import cache
 
 import numpy as np
 
-from qomni.ident.datasheet import Geometry
+from qomni.datasheet import Geometry
 
 N_GENERALIZED = {1: 2, 2: 2, 3: 1, 4: 1}
 """Number n_k of generalized velocities s_dot_k (10)-(13) per motion mode k."""

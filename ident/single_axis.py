@@ -19,7 +19,7 @@ from qomni.vehicle_interface import VehicleInterface
 
 from .campaign import METADATA, SIGNALS, CampaignAborted
 from .control_design import design_pd
-from .datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from .estimation import SingleAxisResult, estimate_single_axis
 from .fourier import design_fourier_trajectory
 from .identify import SINGLE_AXIS_JSON, applied_torque_at_samples, correlation_lag

@@ -4,7 +4,7 @@ import pytest
 
 from qomni.diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
 from qomni.diagnosis.fit import ChannelShrink
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
 
 

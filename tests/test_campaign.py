@@ -16,7 +16,7 @@ from qomni.hil.client import VehicleClient
 from qomni.hil.server import VehicleServer
 from qomni.ident import odometry
 from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from qomni.ident.identify import identify_run, validate_run
 from qomni.ident.recording import read_signals
 from qomni.cli import app

@@ -9,7 +9,7 @@ import pytest
 from qomni.diagnosis.channels import ChannelData, StepContext
 from qomni.diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE, play, plausible
 from qomni.ident import filtering, kinematics
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G = SHEET.geometry

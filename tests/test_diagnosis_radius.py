@@ -12,7 +12,7 @@ import pytest
 from qomni.diagnosis.hypotheses import WHEEL_RADIUS, _input_torque, _project
 from qomni.emulator.description import VehicleDescription
 from qomni.ident import dynamics, kinematics, odometry
-from qomni.ident.datasheet import Geometry
+from qomni.datasheet import Geometry
 
 D = VehicleDescription.load()
 G = Geometry(D.geometry.l, D.geometry.b, D.geometry.a, D.geometry.r, D.geometry.steering_limit)

@@ -411,7 +411,7 @@ def steered_circle(effects, alpha_v=0.3, speed=1.0, seconds=2.5):
     """Mode 2 at α_v with a steering hold through differential torques: mean chassis velocities
     (ẋ, ẏ, γ̇) over the last 0.5 s."""
     from qomni.ident import kinematics
-    from qomni.ident.datasheet import Geometry
+    from qomni.datasheet import Geometry
     geometry = Geometry(G.l, G.b, G.a, G.r, G.steering_limit)
     alpha0 = kinematics.f_icr(np.array([alpha_v]), geometry)[0]
     hold = np.linalg.pinv(DR.i_G * kinematics.H(1, np.zeros((1, 2)), geometry)[0][5:9, :].T)

@@ -165,7 +165,7 @@ def test_bus_off_and_sync_loss_fault_the_drives(spec, kind):
 # ------------------------------------------------------------- campaign: abort, keep the record
 def test_campaign_aborts_cleanly_on_a_fault_and_keeps_the_recording(tmp_path):
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
-    from qomni.ident.datasheet import DataSheet
+    from qomni.datasheet import DataSheet
     from qomni.ident.recording import read_signals
     import json
 

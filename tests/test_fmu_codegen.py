@@ -10,7 +10,7 @@ import pytest
 from qomni.fmu import codegen
 from qomni.fmu.export import c_source_directory
 from qomni.ident import kinematics
-from qomni.ident.datasheet import DataSheet, Geometry
+from qomni.datasheet import DataSheet, Geometry
 from qomni.ident.dynamics import feedforward
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")

@@ -19,7 +19,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 from qomni.fmu.export import c_source_directory, export_feedforward_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
-from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import feedforward  # noqa: E402
 from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
 from qomni.ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS  # noqa: E402

@@ -18,7 +18,7 @@ from qomni.fmu import plant_reference as R  # noqa: E402
 from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave, PlantVehicle  # noqa: E402
 from qomni.fmu.export import c_source_directory, export_plant_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
-from qomni.ident.datasheet import DataSheet  # noqa: E402
+from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import forward_dynamics  # noqa: E402
 from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
 from test_fmu_codegen import random_states  # noqa: E402

@@ -5,12 +5,12 @@ from pathlib import Path
 
 import pytest
 
-from qomni.ident.datasheet import DataSheet, DataSheetError, Nominal
+from qomni.datasheet import DataSheet, DataSheetError, Nominal
 from qomni.ident.symbolic import PARAMETER_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
 EMULATOR_TOML = ROOT / "emulator" / "data" / "prototype.toml"
-OWN_TOML = ROOT / "ident" / "data" / "prototype_datasheet.toml"
+OWN_TOML = ROOT / "qomni" / "data" / "prototype_datasheet.toml"
 
 
 def test_packaged_copy_equals_emulator_description():

@@ -6,7 +6,7 @@ import sympy as sp
 from qomni.ident import dynamics as D
 from qomni.ident import kinematics as K
 from qomni.ident import symbolic as S
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G, I_G = SHEET.geometry, SHEET.drive.i_G

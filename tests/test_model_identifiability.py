@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from qomni.ident import identifiability as I
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 from qomni.ident.symbolic import PARAMETER_NAMES
 
 G = DataSheet.load().geometry

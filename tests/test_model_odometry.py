@@ -4,7 +4,7 @@ import pytest
 
 from qomni.ident import kinematics as K
 from qomni.ident import odometry as O
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 
 G = DataSheet.load().geometry
 RNG = np.random.default_rng(3)

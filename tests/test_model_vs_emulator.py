@@ -9,7 +9,7 @@ import pytest
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.vehicle import Emulator
 from qomni.ident import dynamics, kinematics
-from qomni.ident.datasheet import Geometry
+from qomni.datasheet import Geometry
 
 D = VehicleDescription.load()
 G = Geometry(D.geometry.l, D.geometry.b, D.geometry.a, D.geometry.r, D.geometry.steering_limit)

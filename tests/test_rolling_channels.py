@@ -6,7 +6,7 @@ import numpy as np
 
 from qomni.diagnosis.channels import _misalignment_sliding, rolling_constraints
 from qomni.ident import kinematics
-from qomni.ident.datasheet import DataSheet
+from qomni.datasheet import DataSheet
 
 SHEET = DataSheet.load()
 G = SHEET.geometry

@@ -9,8 +9,8 @@ from .console import fail
 
 
 def load_datasheet(vehicle: Optional[Path], datasheet: Optional[Path]):
-    """The :class:`~qomni.ident.datasheet.DataSheet` of ``datasheet`` or ``vehicle`` (default: the prototype's)."""
-    from qomni.ident.datasheet import DataSheet, DataSheetError
+    """The :class:`~qomni.datasheet.DataSheet` of ``datasheet`` or ``vehicle`` (default: the prototype's)."""
+    from qomni.datasheet import DataSheet, DataSheetError
 
     try:
         return DataSheet.load(datasheet or vehicle)

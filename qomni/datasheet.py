@@ -1,7 +1,10 @@
 """The vehicle data sheet: what an engineer knows about the real vehicle before identification.
 
+A leaf module (numpy only), the one place the data sheet is defined: the identification, the CANopen client
+(drive data), the FMU export and the emulator's vehicle description (which embeds it) all read it.
+
 A data-sheet TOML file has the sections ``[vehicle]`` (optional ``name``), ``[geometry]``,
-``[drive]`` and ``[nominal]``; see ``ident/data/prototype_datasheet.toml`` (the default prototype).
+``[drive]`` and ``[nominal]``; see ``qomni/data/prototype_datasheet.toml`` (the default prototype).
 Any other section (an emulator description's ``[truth]``, ``[body]``, ``[noise]``) is ignored and never
 read, so the emulator's vehicle description files can be loaded as data sheets too.
 
@@ -20,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_DATASHEET = "data/prototype_datasheet.toml"
-"""Resource path (inside the ``ident`` package) of the default prototype data sheet."""
+"""Resource path (inside the ``qomni`` package) of the default prototype data sheet."""
 
 
 class DataSheetError(ValueError):
@@ -103,7 +106,7 @@ class DataSheet:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "DataSheet":
         """Read a data-sheet TOML file; ``None`` reads the packaged default prototype
-        (``ident/data/prototype_datasheet.toml``). Only [vehicle], [geometry], [drive] and [nominal]
+        (``qomni/data/prototype_datasheet.toml``). Only [vehicle], [geometry], [drive] and [nominal]
         are read; other sections are ignored.
 
         Raises:
@@ -112,8 +115,8 @@ class DataSheet:
                 a non-numeric value or an impossible value; the message names file, section and key.
         """
         if path is None:
-            text = resources.files("qomni.ident").joinpath(DEFAULT_DATASHEET).read_text(encoding="utf-8")
-            source = "ident/" + DEFAULT_DATASHEET
+            text = resources.files("qomni").joinpath(DEFAULT_DATASHEET).read_text(encoding="utf-8")
+            source = "qomni/" + DEFAULT_DATASHEET
         else:
             text = Path(path).read_text(encoding="utf-8")
             source = str(path)
