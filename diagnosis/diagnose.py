@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from qomni.ident.estimation import P1_NAMES, IdentificationResult
-from qomni.ident.identify import correlation_lag, load_identification, load_run
+from qomni.ident.regressor_rows import correlation_lag
+from qomni.ident.rundir import load_identification, load_run
 
 from . import fit as fitting
 from . import where as where_

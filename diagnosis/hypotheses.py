@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from qomni.ident import filtering, kinematics
-from qomni.ident.identify import model_alpha
+from qomni.ident.regressor_rows import model_alpha
 from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY, SIDE_INDEX, SIDE_SIGN
 
 from .channels import ChannelData

@@ -118,11 +118,11 @@ def predict_windows(run_dir: str | os.PathLike, fmu_path: str | os.PathLike | No
     Returns:
         one :class:`StepAccuracy` per evaluated step, in the order of ``steps``.
     Raises:
-        ident.identify.RunDirectoryError: missing files; ValueError: window too short.
+        qomni.ident.rundir.RunDirectoryError: missing files; ValueError: window too short.
     """
     from qomni.fmu.cosim import PlantVehicle
     from qomni.fmu.export import export_plant_fmu
-    from qomni.ident.identify import load_identification, load_run
+    from qomni.ident.rundir import load_identification, load_run
 
     signals, sheet, _ = load_run(run_dir)
     ts = sheet.drive.cycle_time

@@ -434,7 +434,7 @@ def compile_binary(source_dir: Path, c_files: list[str], output: Path, compiler:
 
 def _identification_values(identification) -> tuple[dict[str, float], dict[str, float]]:
     if isinstance(identification, (str, os.PathLike)):
-        from qomni.ident.identify import load_identification
+        from qomni.ident.rundir import load_identification
         identification = load_identification(identification)
     try:
         values = identification.as_dict()
@@ -479,7 +479,7 @@ def export_feedforward_fmu(identification: "IdentificationResult | str | os.Path
         ValueError: fmi_version not 2 or 3, ``out`` without the ``.fmu`` suffix, bad identifier,
             non-finite parameters, i_G or eps <= 0.
         TypeError: ``identification`` of a wrong type.
-        ident.identify.RunDirectoryError: no identification.json at the given path.
+        qomni.ident.rundir.RunDirectoryError: no identification.json at the given path.
         FmuExportError: compilation failed.
     """
     out, identifier = _resolve_out(out, fmi_version, model_identifier, DEFAULT_MODEL_IDENTIFIER)

@@ -25,11 +25,10 @@ from .controller import ControllerSettings, StepController, quintic_alignment
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .recording import SignalWriter
+from .rundir import METADATA, SIGNALS
 
 IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
-METADATA = "metadata.json"
-SIGNALS = "signals.csv"
 
 
 class CampaignAborted(RuntimeError):

@@ -17,12 +17,14 @@ import numpy as np
 from . import filtering
 from qomni.vehicle_interface import VehicleInterface
 
-from .campaign import METADATA, SIGNALS, CampaignAborted
+from .campaign import CampaignAborted
+from .rundir import METADATA, SIGNALS
 from .control_design import design_pd
 from qomni.datasheet import DataSheet
 from .estimation import SingleAxisResult, estimate_single_axis
 from .fourier import design_fourier_trajectory
-from .identify import SINGLE_AXIS_JSON, applied_torque_at_samples, correlation_lag
+from .rundir import SINGLE_AXIS_JSON
+from .regressor_rows import applied_torque_at_samples, correlation_lag
 from .recording import SignalWriter, read_signals
 
 SINGLE_AXIS_DIR = "single_axis"

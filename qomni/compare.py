@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from qomni.emulator.description import VehicleDescription
-from qomni.ident.identify import load_identification
+from qomni.ident.rundir import load_identification
 
 COMPARISON_JSON = "comparison.json"
 

@@ -81,7 +81,7 @@ def test_decode_with_another_mapping_needs_its_eds(session, tmp_path):
 
 def test_qomni_decode_writes_a_run_directory(session, tmp_path):
     from qomni.datasheet import DataSheet
-    from qomni.ident.identify import load_run
+    from qomni.ident.rundir import load_run
     from qomni.cli import app
 
     _, logs, reference, _ = session

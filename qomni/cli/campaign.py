@@ -153,7 +153,8 @@ def _print_validation(validation) -> None:
 
 
 def _plots(run_dir: Path, result, validation) -> None:
-    from qomni.ident.identify import identification_blocks, load_run, validation_blocks
+    from qomni.ident.regressor_rows import identification_blocks, validation_blocks
+    from qomni.ident.rundir import load_run
     from qomni.ident.plots import torque_comparison
 
     signals, sheet, _ = load_run(run_dir)
@@ -179,7 +180,8 @@ def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campai
 @app.command()
 def validate(run_dir: Path = typer.Argument(..., help="Run directory with identification.json.")):
     """Validate identification.json on the recorded lane change (writes validation.json, plots)."""
-    from qomni.ident.identify import load_identification, validate_run
+    from qomni.ident.rundir import load_identification
+    from qomni.ident.identify import validate_run
 
     validation = guarded(lambda: validate_run(run_dir))
     _print_validation(validation)

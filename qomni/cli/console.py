@@ -22,7 +22,7 @@ def fail(message: str) -> None:
 def guarded(fn):
     """``fn()``, or :func:`fail` with the message of a run-directory, recording or identifiability error."""
     from qomni.ident.estimation import IdentifiabilityError
-    from qomni.ident.identify import RunDirectoryError
+    from qomni.ident.rundir import RunDirectoryError
     from qomni.ident.recording import RecordingError
 
     try:

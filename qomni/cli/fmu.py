@@ -24,7 +24,7 @@ def export_fmu(
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
     from qomni.fmu.export import FmuExportError, export_feedforward_fmu, export_plant_fmu
-    from qomni.ident.identify import datasheet_from_metadata, load_identification
+    from qomni.ident.rundir import datasheet_from_metadata, load_identification
 
     exporters = {"feedforward": (export_feedforward_fmu, "feed-forward law (21)"),
                  "plant": (export_plant_fmu, "plant, reduced dynamics (19)/(20) per motion mode")}

@@ -129,9 +129,9 @@ def decode(
 
     from qomni.hil.decode import DecodeError, DecodeReport, decode_log, node_files
     from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
-    from qomni.ident.campaign import METADATA, SIGNALS
+    from qomni.ident.rundir import METADATA, SIGNALS
     from qomni.datasheet import DataSheet, DataSheetError
-    from qomni.ident.identify import RunDirectoryError, datasheet_from_metadata
+    from qomni.ident.rundir import RunDirectoryError, datasheet_from_metadata
     from qomni.ident.recording import SignalWriter
 
     if (out / SIGNALS).exists():
