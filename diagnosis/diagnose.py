@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qomni.conventions import GRAVITY
 from qomni.ident.estimation import P1_NAMES, IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import load_identification, load_run
@@ -32,7 +33,7 @@ from qomni.ident.rundir import load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import GRAVITY, LIBRARY, STRIBECK_WHEELS, Hypothesis, generic, plausible
+from .hypotheses import LIBRARY, STRIBECK_WHEELS, Hypothesis, generic, plausible
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from qomni.diagnosis.channels import ChannelData, StepContext
-from qomni.diagnosis.hypotheses import GRAVITY, SCRUB_FRICTION, STEERING_COMPLIANCE, play, plausible
+from qomni.conventions import GRAVITY
+from qomni.diagnosis.hypotheses import STEERING_COMPLIANCE, plausible
+from qomni.diagnosis.hypotheses.steering_compliance import SCRUB_FRICTION, play
 from qomni.ident import filtering, kinematics
 from qomni.datasheet import DataSheet
 

@@ -9,7 +9,8 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from qomni.diagnosis.hypotheses import WHEEL_RADIUS, _input_torque, _project
+from qomni.diagnosis.hypotheses import WHEEL_RADIUS
+from qomni.diagnosis.hypotheses.base import _input_torque, _project
 from qomni.emulator.description import VehicleDescription
 from qomni.ident import dynamics, kinematics, odometry
 from qomni.datasheet import Geometry

@@ -3,7 +3,8 @@ joint (static friction ratio·d_c decaying to d_c over v_s, as the emulator's jo
 import numpy as np
 import pytest
 
-from qomni.diagnosis.hypotheses import EPS_SIGN, STICK_VELOCITY, _friction_direction, _stribeck
+from qomni.conventions import EPSILON as EPS_SIGN
+from qomni.diagnosis.hypotheses.stribeck import STICK_VELOCITY, _friction_direction, _stribeck
 from qomni.ident import filtering
 
 T_S = 0.002

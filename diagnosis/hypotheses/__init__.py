@@ -1,0 +1,64 @@
+"""The library of named physical hypotheses: unmodelled effects as nested extensions of the paper's
+model, one plug-in module per effect (mirroring ``emulator/effects``) behind one contract
+(:class:`~.base.Hypothesis`).
+
+Each hypothesis adds columns Φ_e to a channel so that the residual of the base model is explained as
+``r ≈ Θ̂₁ δp + Φ_e θ_e`` (θ_e = 0 is the paper's model). Columns are built from what the vehicle puts
+on the bus (recorded torques, encoder and steering-sensor angles, odometry) and the base model's
+parameters — never from the emulator. Non-linear parameters (a delay, a Stribeck velocity) are
+profiled over a grid; everything else enters linearly.
+
+Sign convention: the residual is τ̂ − H_kᵀΘ̂p (measured generalized input minus the model's need), so a
+resisting load that the model lacks gives a positive column.
+
+Hypotheses (``Hypothesis.name`` equals the effect name the emulator's effects file uses):
+
+=========================  ==============================================  =====================
+name                       columns                                         magnitude reported
+=========================  ==============================================  =====================
+payload                    Θ̂_{m_ch}, Θ̂_{C_ch}, centre-of-mass offset       Δm [kg]
+incline                    m_ch·g along world x, y in the chassis frame   angle [rad]
+stribeck (wheels/steering) d_c·exp(−(v/v_s)²)·s(v), v_s profiled; s the   breakaway ratio − 1
+                           direction of sliding, or of the motion ending a
+                           stick
+rolling_resistance         (m_ch g r / 4)·tanh(β̇_i/ε) per wheel           c_rr [-]
+actuator_delay             H_kᵀB(u(t) − u(t − T_d)), T_d profiled           T_d [s]
+torque_constant_error      −H_kᵀB e_j u_j for one drive j                  factor − 1 [-]
+wheel_radius               (kinematic) predicted rolling angle; (torque)    r_nominal/r − 1 [-]
+                           −(steering-joint terms) − 2·(Θ̂_{m_ch} m_ch +
+                           Θ̂_{C_ch} C_ch): odometry's scale
+backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
+steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
+                           drag μN·|δ| of the toed rear wheels, δ = T/k
+                           through the held joints' stiction play d_c/2;
+                           the rotation's drag: s_rot/k, 0 ≤ s_rot ≤ 1.5
+tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
+                           side forces need slip angles F/C_α
+heavy_steering_units       exact point masses at the wheel centres          m_w [kg]
+=========================  ==============================================  =====================
+"""
+from __future__ import annotations
+
+from .actuator_delay import ACTUATOR_DELAY
+from .backlash import BACKLASH
+from .base import Hypothesis, Magnitude, plausible
+from .generic import generic
+from .heavy_steering_units import HEAVY_STEERING_UNITS
+from .incline import INCLINE
+from .payload import PAYLOAD
+from .rolling_resistance import ROLLING_RESISTANCE
+from .steering_compliance import STEERING_COMPLIANCE
+from .stribeck import STRIBECK_STEERING, STRIBECK_WHEELS
+from .tire_slip import TIRE_SLIP
+from .torque_constant_error import TORQUE_CONSTANT
+from .wheel_radius import WHEEL_RADIUS
+
+LIBRARY: tuple[Hypothesis, ...] = (
+    PAYLOAD, INCLINE, STRIBECK_WHEELS, STRIBECK_STEERING, ROLLING_RESISTANCE, ACTUATOR_DELAY,
+    *TORQUE_CONSTANT, WHEEL_RADIUS, BACKLASH, STEERING_COMPLIANCE, TIRE_SLIP, HEAVY_STEERING_UNITS,
+)
+"""Every hypothesis the diagnosis tests."""
+
+__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "generic", "plausible", "ACTUATOR_DELAY", "BACKLASH",
+           "HEAVY_STEERING_UNITS", "INCLINE", "PAYLOAD", "ROLLING_RESISTANCE", "STEERING_COMPLIANCE",
+           "STRIBECK_STEERING", "STRIBECK_WHEELS", "TIRE_SLIP", "TORQUE_CONSTANT", "WHEEL_RADIUS"]

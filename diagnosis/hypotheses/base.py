@@ -1,0 +1,123 @@
+"""The contract every hypothesis plug-in fills (:class:`Hypothesis`, :class:`Magnitude`) and the helpers
+that turn a generalized force or a constraint violation into a channel's columns."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from qomni.conventions import EPSILON as EPS_SIGN
+from qomni.ident import filtering
+
+from ..channels import ChannelData
+
+
+@dataclass(frozen=True)
+class Magnitude:
+    """A hypothesis' physical size: value, 95 % interval, unit and what it is."""
+
+    value: float
+    ci: tuple[float, float]
+    unit: str
+    quantity: str
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One named unmodelled effect.
+
+    Attributes:
+        name: effect name (``payload``, ``incline`` …).
+        variant: which instance (``"drive fl"``, ``"joints=wheels"``) or ``""``.
+        parameters: names of the linear coefficients θ.
+        columns: ``(channel, nonlinear) -> (n, len(parameters))`` or None when the hypothesis does not
+            act on that channel.
+        grid: values of the profiled non-linear parameter (``(None,)`` if none).
+        magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
+        physical: ``θ -> bool``: whether the fitted sign is physically possible.
+        absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
+        relevant: smallest size of practical relevance; a smaller effect is not reported as
+            significant however well the data determine it.
+        size: ``θ -> float``, the size ``relevant`` bounds (default |θ₀|, the first coefficient).
+    """
+
+    name: str
+    variant: str
+    parameters: tuple[str, ...]
+    columns: Callable[[ChannelData, object], np.ndarray | None]
+    grid: tuple = (None,)
+    magnitude: Callable = None
+    physical: Callable[[np.ndarray], bool] = lambda theta: True
+    absorbed_by: tuple[str, ...] = ()
+    nonlinear_unit: str = ""
+    relevant: float = 0.0
+    size: Callable[[np.ndarray], float] = lambda theta: abs(float(theta[0]))
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.variant})" if self.variant else self.name
+
+
+def plausible(h: Hypothesis, theta: np.ndarray) -> bool:
+    """Physically possible and of practically relevant size."""
+    return bool(h.physical(theta)) and (h.relevant == 0 or h.size(theta) >= h.relevant)
+
+
+def _project(ch: ChannelData, Q: np.ndarray, smooth: bool = False) -> np.ndarray:
+    """Generalized force Q (N, 9) of the step → the channel's rows H_k[:, :, j]ᵀQ; ``smooth``: low-pass
+    at ω_g first (parallel filtering of non-smooth columns, as ``ident.identify`` does)."""
+    ctx = ch.context
+    if smooth:
+        Q = filtering.zero_phase_lowpass(Q, ctx.st.cycle_time, ctx.st.omega_g)
+    return ch.rows(np.einsum("ni,ni->n", ctx.H[:, :, ch.index], Q))
+
+
+def _torque_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "torque" else None
+    return wrapped
+
+
+def _kinematic_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "kinematic" else None
+    return wrapped
+
+
+def _rolling_only(fn):
+    def wrapped(ch: ChannelData, nonlinear):
+        return fn(ch, nonlinear) if ch.kind == "rolling" else None
+    return wrapped
+
+
+def _rolling(ch: ChannelData, violation: np.ndarray) -> np.ndarray:
+    """(N, 8) constraint-violation rates (m/s) of the step → the rolling channel's rows (n,)."""
+    return ch.rows(ch.context.rolling.integrate(violation)[:, ch.index])
+
+
+def _tyre_torque(ctx) -> np.ndarray:
+    """(N, 4) wheel-side torque the drives pass on to the tyres, N m: i_G·u less the model's wheel
+    friction d_cw·tanh(β̇/ε) + d_vw·β̇."""
+    p, beta_d = ctx.p, ctx.st.qd[:, 5:9]
+    return ctx.sheet.drive.i_G * ctx.st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d
+
+
+def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
+    return (scale * (value - 1.96 * std), scale * (value + 1.96 * std))
+
+
+def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):
+    def magnitude(theta, cov, nonlinear, sheet):
+        v, s = float(theta[index]), float(math.sqrt(max(cov[index, index], 0.0)))
+        return Magnitude(scale * v, _ci(v, s, scale), unit, quantity)
+    return magnitude
+
+
+def _input_torque(ch: ChannelData) -> np.ndarray:
+    """(N, 9) B u with the step's filtered, aligned motor torques (N m wheel side on the β rows)."""
+    st = ch.context.st
+    Bu = np.zeros((len(st.time), 9))
+    Bu[:, 5:9] = ch.context.sheet.drive.i_G * st.motor_torque
+    return Bu
