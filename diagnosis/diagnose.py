@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from qomni.conventions import GRAVITY
 from qomni.ident.estimation import P1_NAMES, IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import load_identification, load_run
@@ -33,7 +32,8 @@ from qomni.ident.rundir import load_identification, load_run
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import LIBRARY, STRIBECK_WHEELS, Hypothesis, generic, plausible
+from .hypotheses import LIBRARY, Hypothesis, generic, plausible
+from .hypotheses.base import RuleRows
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -172,83 +172,6 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     return best
 
 
-#: One-sided z (5 %) the wheel joints' Stribeck level must reach in the steps without steering motion
-#: (modes 2–4), beyond the reference run's level there, to be preferred over the steering joints' variant.
-#: The level is fitted on all of those steps' rows: the placement only chooses between two variants
-#: whose significance the steering steps' fit rows established.
-WHEEL_FRICTION_Z = 1.645
-
-
-def _tell_friction_joints_apart(candidates: list[fitting.Candidate], unsteered_z) -> None:
-    """Decide between the two Stribeck variants where they differ.
-
-    In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
-    joints and of the steering joints shape the steering steps alike, and the steering variant usually
-    fits them a little better. Only steps in which the wheels turn without steering (modes 2–4) tell
-    them apart: there the steering joints' variant has no column. ``unsteered_z(v_s)`` is the z of the
-    wheel variant's level fitted on those steps alone beyond the reference run's level there
-    (:func:`diagnosis.fit.level_z`). When the steering variant is significant and that z reaches
-    ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
-    friction, the unsteered steps place it in the wheel joints. Below it the steering variant is, even
-    where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
-    friction do not. The same holds when only the wheel variant passes the test of the steering steps
-    and the steering variant confirms on held-out data as well: the steering variant is then reported,
-    with that test's significance. When it does not confirm, the wheel variant stays."""
-    by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
-    wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
-    if wheels is None or steering is None or not (steering.significant or wheels.significant):
-        return
-    z = unsteered_z(wheels.fit.nonlinear)
-    if z is None:
-        return
-    if z < WHEEL_FRICTION_Z:
-        if not wheels.significant:
-            return
-        if not steering.significant:
-            if not (steering.physical and steering.evaluation.confirms(fitting.MIN_SHRINK)):
-                return
-            steering.significant = True
-            steering.notes.append(f"preferred over the wheel joints, whose level in the steps without "
-                                  f"steering motion is not beyond the reference run's (z = {z:.1f}); "
-                                  f"significance from the wheel variant's test of the steering steps "
-                                  f"(p = {wheels.p_value:.1e})")
-        wheels.significant = False
-        wheels.notes.append(f"the steering joints' variant is preferred: this one's level in the steps "
-                            f"without steering motion is not beyond the reference run's (z = {z:.1f} "
-                            f"< {WHEEL_FRICTION_Z})")
-        return
-    if not steering.significant:
-        return
-    steering.significant = False
-    steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
-                          f"(z = {z:.1f}); this one has no column there")
-    wheels.significant = wheels.physical and wheels.evaluation.confirms(fitting.MIN_SHRINK)
-    wheels.notes.append(f"preferred over the steering joints: its level in the steps without steering "
-                        f"motion exceeds the reference run's by z = {z:.1f}; significance from the "
-                        f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
-
-
-def _unsteered_wheel_z(all_rows: fitting.Problem, ref_problem: fitting.Problem | None, model, lag: int,
-                       cache: dict):
-    """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
-    reference run's level in the same steps (beyond 0 without a reference run).
-
-    ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
-    low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
-    the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
-    def unsteered(ch):
-        return ch.context.k != 1
-
-    def z(v_s):
-        # the reference run's level at this v_s only (reference_levels would fit the whole grid)
-        ref = None if ref_problem is None else fitting.solve(fitting.restrict(ref_problem, unsteered), model,
-                                                             STRIBECK_WHEELS, v_s, lag, cache)
-        return fitting.level_z(fitting.restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
-                               None if ref is None else ref.theta)
-
-    return z
-
-
 def _removed_rms(evaluation: fitting.Evaluation, channel: str) -> float:
     """Held-out RMS removed from one channel (its unit), 0 if it was not evaluated."""
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
@@ -292,7 +215,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                                      levels.get(h.label))
                               for h in LIBRARY) if c is not None]
     all_rows = fp if hold is not None else fitting.make_problem(chans, lag, chans)[0]
-    _tell_friction_joints_apart(candidates, _unsteered_wheel_z(all_rows, ref_problem, model, lag, cache))
+    rows = RuleRows(all_rows, ref_problem, model, lag, cache)
+    for resolve in dict.fromkeys(h.resolve for h in LIBRARY if h.resolve is not None):
+        resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
     first = next((c for c in candidates if c.significant), None)
@@ -350,22 +275,15 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                          cache))
 
 
-#: Effects the paper's parameters can carry: name → {parameter: (coefficient, scale(p, r))}.
-FOLDABLE = {
-    "payload": {"m_ch": ("delta_m", lambda p, r: 1.0), "C_ch": ("delta_C", lambda p, r: 1.0)},
-    "rolling_resistance": {"d_cw": ("c_rr", lambda p, r: p[6] * GRAVITY * r / 4)},
-}
-
-
 def fold(model: IdentificationResult, final: fitting.Fit, accepted: list, r: float):
-    """The model's p (11,) with the final fit's δp and the foldable accepted effects folded in, and the
-    accepted effects that stay outside the paper's parameters."""
+    """The model's p (11,) with the final fit's δp and the accepted effects that the paper's parameters can
+    carry folded in (``Hypothesis.folds_into``), and the accepted effects that stay outside them."""
     p = model.p.copy()
     p[:10] += final.delta_p
     rest = []
     for c in accepted:
-        rule = FOLDABLE.get(c.hypothesis.name)
-        if rule is None:
+        rule = c.hypothesis.folds_into
+        if not rule:
             rest.append(c)
             continue
         theta = dict(zip(c.hypothesis.parameters, c.fit.theta[-len(c.hypothesis.parameters):]))
@@ -392,7 +310,7 @@ def _simulation(problem: fitting.Problem, model: IdentificationResult, base: fit
     """Forward-simulation error per torque channel, base fit vs. with the accepted effects. The base
     parameters of each fit (p + δp) enter the simulated dynamics; the effects' terms are taken from
     the measured signals (teacher forcing, :mod:`diagnosis.simulate`) unless the paper's parameters can
-    carry them (:data:`FOLDABLE`)."""
+    carry them (``Hypothesis.folds_into``)."""
     out = {}
     seen = set()
     for i, ch in enumerate(problem.channels):

@@ -29,7 +29,7 @@ from scipy import stats
 from qomni.ident.estimation import P1_NAMES, IdentificationResult
 
 from .channels import ChannelData
-from .hypotheses import Hypothesis, Magnitude, plausible
+from .hypotheses.base import Hypothesis, Magnitude, plausible
 
 #: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
 WINDOW = 1.0

@@ -21,7 +21,7 @@ AUGMENTED_JSON = "augmented_identification.json"
 def augmented_identification(d: Diagnosis) -> dict | None:
     """The model with the diagnosis folded in, in ``identification.json`` form (``qomni export-fmu``
     exports it): the base parameters' shift δp of the final fit, plus the accepted effects that the
-    paper's parameters can carry (``diagnosis.diagnose.FOLDABLE``: a payload's Δm_ch, ΔC_ch; rolling
+    paper's parameters can carry (``Hypothesis.folds_into``: a payload's Δm_ch, ΔC_ch; rolling
     resistance as Δd_cw = c_rr·m_ch·g·r/4). The others are listed under ``not_representable``."""
     if d.model is None or d.final_fit is None:
         return None

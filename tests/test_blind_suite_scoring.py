@@ -107,7 +107,7 @@ def _stribeck(variant, significant, p_value=1e-3, shrink=0.3, v_s=0.02, removed=
 
 
 def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
-    from qomni.diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    from qomni.diagnosis.hypotheses.stribeck import WHEEL_FRICTION_Z, tell_friction_joints_apart as _tell_friction_joints_apart
     asked = []
 
     def z_of(z):
@@ -152,7 +152,7 @@ def test_wheel_variant_alone_significant_is_placed_in_the_steering_joints_when_u
     than the reference run: the friction is established, not in the wheel joints -> steering variant,
     with the wheel variant's p, if that one confirms on held-out data; with z above the bar the wheel
     variant stays."""
-    from qomni.diagnosis.diagnose import WHEEL_FRICTION_Z, _tell_friction_joints_apart
+    from qomni.diagnosis.hypotheses.stribeck import WHEEL_FRICTION_Z, tell_friction_joints_apart as _tell_friction_joints_apart
     wheels = _stribeck("joints=wheels", True, p_value=5.6e-3)
     steering = _stribeck("joints=steering", False, p_value=1.2e-2)
     _tell_friction_joints_apart([steering, wheels], lambda v_s: 0.0)

@@ -3,8 +3,8 @@ that turn a generalized force or a constraint violation into a channel's columns
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -41,6 +41,12 @@ class Hypothesis:
         relevant: smallest size of practical relevance; a smaller effect is not reported as
             significant however well the data determine it.
         size: ``θ -> float``, the size ``relevant`` bounds (default |θ₀|, the first coefficient).
+        folds_into: the paper's parameters that can carry the effect once identified:
+            ``{parameter of p₁: (coefficient θ name, scale(p (11,), r [m]) -> float)}``; the effect then
+            needs no term of its own in a forward simulation (p[parameter] += θ·scale).
+        resolve: a rule between this hypothesis' variants, ``(candidates, rows: RuleRows) -> None``, run
+            once on the ranked candidates; it may change their ``significant`` flags and notes (e.g.
+            which joints low-speed friction is placed in). Variants of one effect share the rule.
     """
 
     name: str
@@ -54,10 +60,25 @@ class Hypothesis:
     nonlinear_unit: str = ""
     relevant: float = 0.0
     size: Callable[[np.ndarray], float] = lambda theta: abs(float(theta[0]))
+    folds_into: Mapping[str, tuple[str, Callable[[np.ndarray, float], float]]] = field(default_factory=dict)
+    resolve: Callable | None = None
 
     @property
     def label(self) -> str:
         return f"{self.name} ({self.variant})" if self.variant else self.name
+
+
+@dataclass(frozen=True)
+class RuleRows:
+    """What a hypothesis' ``resolve`` rule may fit on: the diagnosed run with every row a fit row
+    (``all_rows``), the reference run's problem or None, the model, the correlation lag (rows) and the
+    fit cache (:mod:`qomni.diagnosis.fit`)."""
+
+    all_rows: object
+    reference: object | None
+    model: object
+    lag: int
+    cache: dict
 
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:

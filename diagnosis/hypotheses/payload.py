@@ -26,4 +26,5 @@ PAYLOAD = Hypothesis(
     "payload", "", ("delta_m", "delta_C", "m_x_c", "m_y_c"), _payload_columns,
     magnitude=_linear_magnitude(0, "kg", "added mass"),
     physical=lambda t: t[0] > 0 and t[1] > -1e-9,
-    absorbed_by=("m_ch", "C_ch"))
+    absorbed_by=("m_ch", "C_ch"),
+    folds_into={"m_ch": ("delta_m", lambda p, r: 1.0), "C_ch": ("delta_C", lambda p, r: 1.0)})

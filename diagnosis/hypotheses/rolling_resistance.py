@@ -24,4 +24,5 @@ def _rolling_columns(ch: ChannelData, _):
 ROLLING_RESISTANCE = Hypothesis(
     "rolling_resistance", "", ("c_rr",), _rolling_columns,
     magnitude=_linear_magnitude(0, "-", "rolling-resistance coefficient"),
-    physical=lambda t: t[0] > 0, absorbed_by=("d_cw",), relevant=0.003)
+    physical=lambda t: t[0] > 0, absorbed_by=("d_cw",), relevant=0.003,
+    folds_into={"d_cw": ("c_rr", lambda p, r: p[6] * GRAVITY * r / 4)})

@@ -6,7 +6,8 @@ import numpy as np
 from qomni.conventions import EPSILON as EPS_SIGN
 
 from ..channels import ChannelData
-from .base import Hypothesis, _linear_magnitude, _project, _torque_only
+from .. import fit as fitting
+from .base import RuleRows, Hypothesis, _linear_magnitude, _project, _torque_only
 
 
 #: rad/s, joint side: below this speed a joint is taken as sticking. Its friction then holds against the
@@ -58,11 +59,94 @@ def _stribeck_steering_columns(ch: ChannelData, v_s):
     return _project(ch, Q, smooth=True)[:, None]
 
 
+#: One-sided z (5 %) the wheel joints' Stribeck level must reach in the steps without steering motion
+#: (modes 2–4), beyond the reference run's level there, to be preferred over the steering joints' variant.
+#: The level is fitted on all of those steps' rows: the placement only chooses between two variants
+#: whose significance the steering steps' fit rows established.
+WHEEL_FRICTION_Z = 1.645
+
+
+def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
+    """Decide between the two Stribeck variants where they differ.
+
+    In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
+    joints and of the steering joints shape the steering steps alike, and the steering variant usually
+    fits them a little better. Only steps in which the wheels turn without steering (modes 2–4) tell
+    them apart: there the steering joints' variant has no column. ``unsteered_z(v_s)`` is the z of the
+    wheel variant's level fitted on those steps alone beyond the reference run's level there
+    (:func:`qomni.diagnosis.fit.level_z`). When the steering variant is significant and that z reaches
+    ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
+    friction, the unsteered steps place it in the wheel joints. Below it the steering variant is, even
+    where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
+    friction do not. The same holds when only the wheel variant passes the test of the steering steps
+    and the steering variant confirms on held-out data as well: the steering variant is then reported,
+    with that test's significance. When it does not confirm, the wheel variant stays."""
+    by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
+    wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
+    if wheels is None or steering is None or not (steering.significant or wheels.significant):
+        return
+    z = unsteered_z(wheels.fit.nonlinear)
+    if z is None:
+        return
+    if z < WHEEL_FRICTION_Z:
+        if not wheels.significant:
+            return
+        if not steering.significant:
+            if not (steering.physical and steering.evaluation.confirms(fitting.MIN_SHRINK)):
+                return
+            steering.significant = True
+            steering.notes.append(f"preferred over the wheel joints, whose level in the steps without "
+                                  f"steering motion is not beyond the reference run's (z = {z:.1f}); "
+                                  f"significance from the wheel variant's test of the steering steps "
+                                  f"(p = {wheels.p_value:.1e})")
+        wheels.significant = False
+        wheels.notes.append(f"the steering joints' variant is preferred: this one's level in the steps "
+                            f"without steering motion is not beyond the reference run's (z = {z:.1f} "
+                            f"< {WHEEL_FRICTION_Z})")
+        return
+    if not steering.significant:
+        return
+    steering.significant = False
+    steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
+                          f"(z = {z:.1f}); this one has no column there")
+    wheels.significant = wheels.physical and wheels.evaluation.confirms(fitting.MIN_SHRINK)
+    wheels.notes.append(f"preferred over the steering joints: its level in the steps without steering "
+                        f"motion exceeds the reference run's by z = {z:.1f}; significance from the "
+                        f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
+
+
+def unsteered_wheel_z(all_rows, ref_problem, model, lag: int, cache: dict):
+    """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
+    reference run's level in the same steps (beyond 0 without a reference run).
+
+    ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
+    low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
+    the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
+    def unsteered(ch):
+        return ch.context.k != 1
+
+    def z(v_s):
+        # the reference run's level at this v_s only (reference_levels would fit the whole grid)
+        ref = None if ref_problem is None else fitting.solve(fitting.restrict(ref_problem, unsteered), model,
+                                                             STRIBECK_WHEELS, v_s, lag, cache)
+        return fitting.level_z(fitting.restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
+                               None if ref is None else ref.theta)
+
+    return z
+
+
+def resolve_joints(candidates: list, rows: RuleRows) -> None:
+    """The Stribeck variants' rule (``Hypothesis.resolve``): :func:`tell_friction_joints_apart` with the
+    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_z`)."""
+    tell_friction_joints_apart(candidates, unsteered_wheel_z(rows.all_rows, rows.reference, rows.model,
+                                                             rows.lag, rows.cache))
+
+
 STRIBECK_WHEELS = Hypothesis(
     "stribeck", "joints=wheels", ("breakaway_excess",), _stribeck_wheel_columns, STRIBECK_VELOCITIES,
     magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (wheel joints)"),
-    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)")
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
 STRIBECK_STEERING = Hypothesis(
     "stribeck", "joints=steering", ("breakaway_excess",), _stribeck_steering_columns,
     STRIBECK_VELOCITIES, magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (steering joints)"),
-    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)")
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
