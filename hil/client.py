@@ -36,6 +36,11 @@ from canopen.profiles.p402 import BaseNode402, State402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from .bus import open_bus
+from .cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
+                  CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
+                  MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
+                  SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK,
+                  supported_mode_bit)
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
 from qomni.vehicle_interface import Measurement
 from .pdo_codec import PdoCodec, build_codec, encode_entry
@@ -43,17 +48,7 @@ from .recorder import BusRecorder
 
 logger = logging.getLogger(__name__)
 
-_CW_ENABLE_OPERATION = 0x000F
-_CW_SHUTDOWN = 0x0006
-_CW_FAULT_RESET = 0x0080
-_MODE_CST = 10
-_CST_SUPPORTED = 0x0200                 # 0x6502 bit 9
-_SW_STATE_MASK, _SW_OPERATION_ENABLED = 0x6F, 0x27
-
-# Objects the cycle needs in the synchronous TPDOs: (index, subindex) → (measurement field, per node).
-_DRIVE_INPUTS = {(0x6041, 0): "status", (0x6064, 0): "position", (0x606C, 0): "velocity",
-                 (0x6077, 0): "torque"}
-_ENCODER_INPUTS = {(0x6004, 0): "counts"}
+_CST_SUPPORTED = supported_mode_bit(_MODE_CST)
 
 
 class CommunicationError(RuntimeError):

@@ -18,9 +18,9 @@ Content, per node (drives 1…4 = fl, rl, fr, rr from ``drive_eds``; encoders 5,
   register, manufacturer field) with value tables for the NMT command and state.
 
 Signal names: ``<node>_<object>`` with CiA names (``fl_target_torque`` 0x6071, ``fl_position_actual``
-0x6064, ``left_position_value`` 0x6004, :data:`OBJECT_NAMES`), otherwise the EDS ParameterName in
+0x6064, ``left_position_value`` 0x6004, :data:`qomni.hil.cia.OBJECT_NAMES`), otherwise the EDS ParameterName in
 snake case (plus ``_<subindex>`` for sub-indices > 0). Values stay in device units, scale 1, with the
-unit where CiA 402/406 define it (:data:`OBJECT_UNITS`): ``permille`` (of motor rated torque 0x6076, a
+unit where CiA 402/406 define it (:data:`qomni.hil.cia.OBJECT_UNITS`): ``permille`` (of motor rated torque 0x6076, a
 device parameter the DBC cannot know), ``inc`` (motor encoder increments), ``inc/s``, ``counts``
 (steering sensor measuring units, 0x6001 per revolution). SI conversion: :mod:`hil.units`.
 
@@ -40,6 +40,8 @@ from canopen import objectdictionary as od
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
+from .cia import (MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY, NMT_COMMAND_NAMES, NMT_STATE_NAMES,
+                  OBJECT_NAMES, OBJECT_UNITS)
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 from .pdo_codec import PdoMappingError, build_codec, check_entry, decode_entry
 
@@ -47,51 +49,13 @@ MASTER = "master"
 _COB_ID_INVALID = 1 << 31
 _COB_ID_EXTENDED = 1 << 29
 
-#: CiA 301/402/406 short names of the objects a PDO usually carries: (index, subindex) → signal stem.
-OBJECT_NAMES: dict[tuple[int, int], str] = {
-    (0x1001, 0): "error_register",
-    (0x603F, 0): "error_code",
-    (0x6040, 0): "controlword",
-    (0x6041, 0): "statusword",
-    (0x6060, 0): "modes_of_operation",
-    (0x6061, 0): "modes_of_operation_display",
-    (0x6062, 0): "position_demand",
-    (0x6063, 0): "position_actual_internal",
-    (0x6064, 0): "position_actual",
-    (0x606B, 0): "velocity_demand",
-    (0x606C, 0): "velocity_actual",
-    (0x6071, 0): "target_torque",
-    (0x6072, 0): "max_torque",
-    (0x6074, 0): "torque_demand",
-    (0x6077, 0): "torque_actual",
-    (0x6078, 0): "current_actual",
-    (0x607A, 0): "target_position",
-    (0x60B2, 0): "torque_offset",
-    (0x60FF, 0): "target_velocity",
-    (0x6004, 0): "position_value",
-    (0x6030, 1): "speed_value",
-}
-#: Device units (CiA 402 §6 as fixed in docs/conventions.md; CiA 406) of mapped objects.
-OBJECT_UNITS: dict[tuple[int, int], str] = {
-    (0x6071, 0): "permille", (0x6072, 0): "permille", (0x6074, 0): "permille", (0x6077, 0): "permille",
-    (0x60B2, 0): "permille", (0x6078, 0): "permille",
-    (0x6062, 0): "inc", (0x6063, 0): "inc", (0x6064, 0): "inc", (0x607A, 0): "inc",
-    (0x606B, 0): "inc/s", (0x606C, 0): "inc/s", (0x60FF, 0): "inc/s",
-    (0x6004, 0): "counts",
-}
 _UNIT_NOTES = {
     "permille": "per mille of motor rated torque 0x6076",
     "inc": "motor encoder increments",
     "inc/s": "motor encoder increments per second",
     "counts": "measuring units, 0x6001 per revolution",
 }
-_MODES = {0: "no mode", 1: "profile position", 3: "profile velocity", 4: "profile torque", 6: "homing",
-          7: "interpolated position", 8: "cyclic synchronous position",
-          9: "cyclic synchronous velocity", 10: "cyclic synchronous torque"}
-_NMT_COMMANDS = {1: "start", 2: "stop", 128: "enter pre-operational", 129: "reset node",
-                 130: "reset communication"}
-_NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
-_CHOICES = {(0x6060, 0): _MODES, (0x6061, 0): _MODES}
+_CHOICES = {(MODES_OF_OPERATION, 0): MODE_NAMES, (MODES_OF_OPERATION_DISPLAY, 0): MODE_NAMES}
 _RANGE = {
     od.BOOLEAN: (0, 1), od.INTEGER8: (-2**7, 2**7 - 1), od.INTEGER16: (-2**15, 2**15 - 1),
     od.INTEGER32: (-2**31, 2**31 - 1), od.INTEGER64: (-2**63, 2**63 - 1), od.UNSIGNED8: (0, 2**8 - 1),
@@ -136,7 +100,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
         frame_id=0x000, name="NMT", length=2, senders=[MASTER], comment="CiA 301 NMT node control",
         signals=[
             Signal("nmt_command", 0, 8, is_signed=False, minimum=0, maximum=255,
-                   conversion=BaseConversion.factory(choices=OrderedDict(_NMT_COMMANDS)),
+                   conversion=BaseConversion.factory(choices=OrderedDict(NMT_COMMAND_NAMES)),
                    comment="NMT command specifier", receivers=[n for _, n, _ in devices]),
             Signal("nmt_node_id", 8, 8, is_signed=False, minimum=0, maximum=127,
                    comment="addressed node, 0 = all", receivers=[n for _, n, _ in devices])]))
@@ -269,7 +233,7 @@ def _service_messages(values, node_id: int, name: str) -> list[Message]:
         frame_id=0x700 + node_id, name=f"{name}_heartbeat", length=1, senders=[name],
         comment=f"node {node_id} ({name}) heartbeat / boot-up (CiA 301 error control)",
         signals=[Signal(f"{name}_nmt_state", 0, 7, is_signed=False, minimum=0, maximum=127,
-                        conversion=BaseConversion.factory(choices=OrderedDict(_NMT_STATES)),
+                        conversion=BaseConversion.factory(choices=OrderedDict(NMT_STATE_NAMES)),
                         receivers=[MASTER], comment="NMT state")])]
     emcy = values.get((0x1014, 0))
     if emcy is not None and not emcy & _COB_ID_INVALID:

@@ -32,16 +32,14 @@ import can
 import numpy as np
 from canopen import objectdictionary as od
 
+from .cia import MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS, MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS
+from .cia import NMT_START as _NMT_START
 from .dbc import enabled_pdos, reset_values
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
 from qomni.vehicle_interface import Measurement
 from .pdo_codec import PdoCodec, PdoMappingError, build_codec
 from .units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
 
-_DRIVE_INPUTS = {(0x6041, 0): "status", (0x6064, 0): "position", (0x606C, 0): "velocity",
-                 (0x6077, 0): "torque"}
-_ENCODER_INPUTS = {(0x6004, 0): "counts"}
-_NMT_START = 0x01
 
 
 class DecodeError(ValueError):

@@ -34,23 +34,15 @@ import logging
 
 from canopen.sdo import SdoAbortedError
 
-from .node301 import ABORT_VALUE_RANGE, EMCY_COMMUNICATION, Node301
+from .cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV, MODE_CST,
+                  MODE_NONE, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE, SW_VOLTAGE_ENABLED)
+from .node301 import Node301
 
 logger = logging.getLogger(__name__)
 
-MODE_NONE = 0
-MODE_CSV = 9                                   # cyclic synchronous velocity
-MODE_CST = 10                                  # cyclic synchronous torque
 SUPPORTED_MODES = (MODE_NONE, MODE_CSV, MODE_CST)
-EMCY_EXCESS_TORQUE = 0x8311                    # CiA 402 error code "excess torque"
 
 # Statusword bits (CiA 402 §6, object 0x6041) beyond the state coding.
-SW_VOLTAGE_ENABLED = 1 << 4
-SW_QUICK_STOP = 1 << 5                         # 1 = quick stop NOT active
-SW_REMOTE = 1 << 9
-SW_INTERNAL_LIMIT = 1 << 11                    # target torque clipped by 0x6072
-SW_FOLLOWS_COMMAND = 1 << 12                   # CST: drive follows the command value
-CW_FAULT_RESET = 1 << 7
 
 # 0x6007 abort connection option codes.
 ABORT_NO_ACTION, ABORT_FAULT, ABORT_DISABLE_VOLTAGE, ABORT_QUICK_STOP = 0, 1, 2, 3

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
-from .node301 import ABORT_VALUE_RANGE, Node301
+from .cia import ABORT_VALUE_RANGE
+from .node301 import Node301
 
 
 class Encoder406(Node301):

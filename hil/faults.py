@@ -50,7 +50,6 @@ import can
 
 logger = logging.getLogger(__name__)
 
-EMCY_BUS_OFF_RECOVERED = 0x8140
 _SYNC_COB_ID = 0x80
 
 

@@ -13,8 +13,8 @@ from typing import Iterable, Mapping, Sequence
 
 from canopen import objectdictionary as od
 
-ABORT_CANNOT_MAP = 0x06040041      # object cannot be mapped to the PDO
-ABORT_PDO_LENGTH = 0x06040042      # number and length of mapped objects exceed PDO length
+from .cia import ABORT_CANNOT_MAP, ABORT_PDO_LENGTH
+
 
 _FORMAT = {
     od.INTEGER8: "b", od.UNSIGNED8: "B", od.INTEGER16: "h", od.UNSIGNED16: "H",

@@ -29,14 +29,8 @@ handed to the bus; a cycle is late if that latency exceeds ``deadline`` (default
 A watchdog thread supervises SYNC/RPDO reception (see ``hil.node301``); a drive that loses its master
 reacts per 0x6007 and its torque is set to 0 at once.
 
-The plant is duck-typed (this module does not import ``emulator``)::
-
-    plant.description.drive  # .i_G, .rated_torque [N m], .max_torque [N m], .encoder_increments,
-                             # .steering_sensor_bits, .cycle_time [s]
-    plant.set_motor_torques(np.ndarray (4,))   # N m motor side, fl rl fr rr
-    plant.step(duration: float)
-    plant.read_sensors()     # .time, .motor_position (4,) incr, .motor_velocity (4,) incr/s,
-                             # .motor_torque (4,) N m, .steering_position (2,) counts
+The plant is anything that fills the contract :class:`qomni.hil.plant.Plant` (drive data,
+``set_motor_torques``, ``step``, ``read_sensors``); this module does not import the emulator.
 """
 from __future__ import annotations
 
@@ -52,10 +46,12 @@ import canopen
 import numpy as np
 
 from .bus import open_bus
+from .cia import EMCY_BUS_OFF
 from .drive402 import Drive402
 from .encoder406 import Encoder406
-from .faults import EMCY_BUS_OFF_RECOVERED, FaultInjector, FaultPlan, FaultyBus
+from .faults import FaultInjector, FaultPlan, FaultyBus
 from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
+from .plant import Plant
 
 logger = logging.getLogger(__name__)
 
@@ -125,7 +121,7 @@ class VehicleServer:
     """Hosts a plant on a CAN bus as the vehicle's CANopen devices.
 
     Args:
-        plant: the duck-typed plant (module docstring).
+        plant: the physics (:class:`qomni.hil.plant.Plant`).
         bus: a python-can bus (left open on :meth:`stop`) or a bus spec string for
             :func:`hil.bus.open_bus` (closed on :meth:`stop`).
         drive_eds, encoder_eds: EDS files of the devices (default: ``hil/eds``); a file with another
@@ -147,7 +143,7 @@ class VehicleServer:
         AttributeError: the plant lacks ``description.drive`` data.
     """
 
-    def __init__(self, plant, bus: can.BusABC | str = "virtual", *,
+    def __init__(self, plant: Plant, bus: can.BusABC | str = "virtual", *,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
                  sync_timeout: float | None = 0.1, watchdog_period: float = 0.02,
                  realtime: bool = False, deadline: float | None = None, faults: FaultPlan | None = None):
@@ -354,7 +350,7 @@ class VehicleServer:
         with self._lock:
             for node in self.nodes:
                 if node.powered:
-                    node.emcy_send(EMCY_BUS_OFF_RECOVERED)
+                    node.emcy_send(EMCY_BUS_OFF)
 
     def _apply_drive_torques(self) -> None:
         """Hand the drives' applied torques to the plant now (outside a SYNC)."""

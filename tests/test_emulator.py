@@ -145,3 +145,12 @@ def test_bad_input_is_refused(tmp_path):
     missing.write_text("[geometry]\nl = 1.2\n")
     with pytest.raises(DescriptionError, match="missing"):
         VehicleDescription.load(missing)
+
+
+def test_the_emulator_fills_the_servers_plant_contract():
+    from qomni.hil.plant import Plant
+
+    with Emulator(D) as emu:
+        assert isinstance(emu, Plant)
+        reading = emu.read_sensors()
+        assert reading.motor_position.shape == (4,) and reading.steering_position.shape == (2,)
