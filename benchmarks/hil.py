@@ -30,9 +30,9 @@ import can
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from qomni.hil.busload import bus_load  # noqa: E402
-from qomni.hil.hub import Hub, hub_bus_spec  # noqa: E402
-from qomni.hil.server import TimingStats  # noqa: E402
+from qomni.hil.tools.busload import bus_load  # noqa: E402
+from qomni.hil.tools.hub import Hub, hub_bus_spec  # noqa: E402
+from qomni.hil.device.server import TimingStats  # noqa: E402
 
 T_S = 0.002
 QOMNI = [sys.executable, "-c", "from qomni.cli import main; main()"]

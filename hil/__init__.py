@@ -1,23 +1,25 @@
 """hil — the vehicle's CANopen network: emulated devices around a plant, and the master that talks to
 either the emulator or the real vehicle.
 
-Modules: ``bus`` (bus spec → python-can bus), ``layout`` (node IDs, EDS files), ``units`` (device units
-↔ SI), ``pdo_codec`` (PDO mapping → struct), ``node301`` / ``drive402`` / ``encoder406`` (devices),
-``server`` (:class:`VehicleServer`, lock-step host of a plant), ``client`` (:class:`VehicleClient`),
-``measurement`` (:class:`Measurement`, :class:`VehicleInterface`), ``recorder`` (BLF bus log).
+Shared by both sides: ``bus`` (bus spec → python-can bus), ``cia`` (the CiA object catalogue), ``layout``
+(node IDs, EDS files), ``units`` (device units ↔ SI), ``pdo_codec`` (PDO mapping → struct).
+``device``: ``node301`` / ``drive402`` / ``encoder406`` (the devices), ``server`` (:class:`VehicleServer`,
+lock-step host of a plant), ``plant`` (the plant contract), ``faults`` (fault injection).
+``master``: ``client`` (:class:`VehicleClient`), ``decode`` (bus logs → measurements).
+``tools``: ``hub`` (socketcand loopback hub), ``recorder`` (BLF/candump logs, replay), ``dbc``, ``busload``.
 
 Importing ``hil`` is light: names below load their module on first use, and nothing in ``hil`` imports
-``emulator`` (the server takes a duck-typed plant).
+``emulator`` (the server takes any :class:`~qomni.hil.device.plant.Plant`).
 """
 from __future__ import annotations
 
 import importlib
 
 _EXPORTS = {
-    "VehicleClient": "qomni.hil.client",
-    "CommunicationError": "qomni.hil.client",
-    "DriveFaultError": "qomni.hil.client",
-    "VehicleServer": "qomni.hil.server",
+    "VehicleClient": "qomni.hil.master.client",
+    "CommunicationError": "qomni.hil.master.client",
+    "DriveFaultError": "qomni.hil.master.client",
+    "VehicleServer": "qomni.hil.device.server",
     "Measurement": "qomni.vehicle_interface",
     "VehicleInterface": "qomni.vehicle_interface",
     "open_bus": "qomni.hil.bus",

@@ -6,7 +6,7 @@ Grammar: ``INTERFACE[:CHANNEL][@BITRATE]``, e.g. ``"virtual"``, ``"virtual:rig1"
 defaults to :data:`DEFAULT_VIRTUAL_CHANNEL`; all ``virtual`` buses of one process on one channel see
 each other's frames). ``udp_multicast`` is refused: this project never puts CAN traffic on a network.
 
-``socketcand`` (a hub, see :mod:`hil.hub`) takes ``socketcand:HOST:PORT/CHANNEL`` with HOST 127.0.0.1
+``socketcand`` (a hub, see :mod:`qomni.hil.tools.hub`) takes ``socketcand:HOST:PORT/CHANNEL`` with HOST 127.0.0.1
 only, e.g. ``socketcand:127.0.0.1:29536/can0``.
 """
 from __future__ import annotations

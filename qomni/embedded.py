@@ -14,8 +14,8 @@ from typing import Iterator
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.emulator.vehicle import Emulator
-from qomni.hil.client import VehicleClient
-from qomni.hil.server import VehicleServer
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.device.server import VehicleServer
 
 _channels = itertools.count()
 
@@ -37,9 +37,9 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
         seed: the emulator's noise seed.
         lifted: chassis jacked up, wheels free (single-axis identification).
         gui: show PyBullet's GUI.
-        record: log file(s) for every frame on the bus (``.blf``, ``.log`` candump; hil.recorder).
+        record: log file(s) for every frame on the bus (``.blf``, ``.log`` candump; qomni.hil.tools.recorder).
         effects: unmodelled effects on the ideal vehicle (``None``: the prototype as described).
-        faults: a :class:`hil.faults.FaultPlan` injected on the emulator's side of the bus.
+        faults: a :class:`qomni.hil.device.faults.FaultPlan` injected on the emulator's side of the bus.
     """
     bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
     emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui, effects=effects)

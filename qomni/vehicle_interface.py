@@ -2,7 +2,7 @@
 and what every vehicle offers (:class:`VehicleInterface`).
 
 The seam between the campaign and whatever vehicle it drives: the CAN client
-(:class:`qomni.hil.client.VehicleClient`), the plant FMU's adapter (:class:`qomni.fmu.cosim.PlantVehicle`)
+(:class:`qomni.hil.master.client.VehicleClient`), the plant FMU's adapter (:class:`qomni.fmu.cosim.PlantVehicle`)
 or any in-process adapter satisfy :class:`VehicleInterface`, so the identification campaign runs unchanged
 against each. A leaf module (numpy only). Frames, orders and units: docs/conventions.md.
 """

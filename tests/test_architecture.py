@@ -110,7 +110,7 @@ def test_importing_every_module_of_ident_fmu_and_diagnosis_loads_no_emulator():
     code = """
 import importlib, pkgutil, sys
 from qomni import ident, fmu, diagnosis
-import qomni.hil.client, qomni.vehicle_interface
+import qomni.hil.master.client, qomni.vehicle_interface
 for pkg in (ident, fmu, diagnosis):
     for mod in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
         importlib.import_module(mod.name)
@@ -120,3 +120,28 @@ print(",".join(loaded))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          check=True)
     assert out.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("side, other", [("device", "master"), ("master", "device"), ("tools", "device"),
+                                         ("tools", "master")])
+def test_hil_sides_stay_apart(side, other):
+    """The master side works against a real vehicle, so it never reaches into the emulated devices, nor
+    they into it; the tools (hub, recorder, DBC, bus load) serve both and depend on neither."""
+    offenders = []
+    for name, path in _modules().items():
+        if not name.startswith(f"qomni.hil.{side}."):
+            continue
+        offenders += [f"{path.relative_to(ROOT)}:{line}: {imported}"
+                      for imported, line in _imports(name, path, top_level_only=False)
+                      if imported.startswith(f"qomni.hil.{other}.") or imported == f"qomni.hil.{other}"]
+    assert not offenders, "\n".join(offenders)
+
+
+def test_every_package_folder_is_installed():
+    """pyproject.toml lists its packages explicitly (package-dir maps the top-level folders under qomni):
+    every folder with an ``__init__.py`` must be in that list, or the installed CLI misses it."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {name for name, path in _modules().items() if path.name == "__init__.py"}
+    assert found == listed, f"not installed: {sorted(found - listed)}; listed but absent: {sorted(listed - found)}"

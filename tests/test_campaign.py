@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.vehicle import Emulator
-from qomni.hil.client import VehicleClient
-from qomni.hil.server import VehicleServer
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.device.server import VehicleServer
 from qomni.ident import odometry
 from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 from qomni.datasheet import DataSheet

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from qomni.hil.client import state_of
-from qomni.hil.drive402 import PowerState
+from qomni.hil.master.client import state_of
+from qomni.hil.device.drive402 import PowerState
 from qomni.hil.layout import DRIVE_EDS
-from qomni.hil.server import VehicleServer
+from qomni.hil.device.server import VehicleServer
 from test_hil_protocol import (FakePlant, Master, channel, enable_by_sdo, master, plant, rpdo1,  # noqa: F401
                                server, wait_for)
 

@@ -148,7 +148,7 @@ def test_bad_input_is_refused(tmp_path):
 
 
 def test_the_emulator_fills_the_servers_plant_contract():
-    from qomni.hil.plant import Plant
+    from qomni.hil.device.plant import Plant
 
     with Emulator(D) as emu:
         assert isinstance(emu, Plant)

@@ -1,4 +1,4 @@
-"""Fault injection (hil.faults): the plan file, each fault kind, the drives' reaction (CiA 301/402) and the
+"""Fault injection (qomni.hil.device.faults): the plan file, each fault kind, the drives' reaction (CiA 301/402) and the
 master's: detect, torque 0, drives disabled, clean abort, everything recorded."""
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import can
 import numpy as np
 import pytest
 
-from qomni.hil.client import CommunicationError, VehicleClient
-from qomni.hil.drive402 import PowerState
-from qomni.hil.faults import FaultInjector, FaultPlan, FaultPlanError, FrameLoss
-from qomni.hil.server import VehicleServer
+from qomni.hil.master.client import CommunicationError, VehicleClient
+from qomni.hil.device.drive402 import PowerState
+from qomni.hil.device.faults import FaultInjector, FaultPlan, FaultPlanError, FrameLoss
+from qomni.hil.device.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant, wait_for
 
 S = PowerState

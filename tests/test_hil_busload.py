@@ -1,8 +1,8 @@
-"""Worst-case bus load of the active PDO mapping (hil.busload)."""
+"""Worst-case bus load of the active PDO mapping (qomni.hil.tools.busload)."""
 import pytest
 
-from qomni.hil.busload import bus_load, frame_bits
-from qomni.hil.decode import node_files
+from qomni.hil.tools.busload import bus_load, frame_bits
+from qomni.hil.master.decode import node_files
 from qomni.hil.layout import DRIVE_EDS
 
 

@@ -1,4 +1,4 @@
-"""hil.client.VehicleClient against hil.server.VehicleServer with a fake plant, in-process (virtual bus)."""
+"""qomni.hil.master.client.VehicleClient against qomni.hil.device.server.VehicleServer with a fake plant, in-process (virtual bus)."""
 from __future__ import annotations
 
 import subprocess
@@ -10,10 +10,10 @@ import can
 import numpy as np
 import pytest
 
-from qomni.hil.client import CommunicationError, DriveFaultError, VehicleClient
-from qomni.hil.drive402 import PowerState
+from qomni.hil.master.client import CommunicationError, DriveFaultError, VehicleClient
+from qomni.hil.device.drive402 import PowerState
 from qomni.vehicle_interface import Measurement, VehicleInterface
-from qomni.hil.server import VehicleServer
+from qomni.hil.device.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
@@ -196,7 +196,7 @@ def test_deterministic_round_trip():
     assert np.array_equal(a, b) and np.array_equal(ta, tb)
 
 
-@pytest.mark.parametrize("module", ["qomni.hil", "qomni.hil.client", "qomni.hil.server", "qomni.hil.bus", "qomni.vehicle_interface"])
+@pytest.mark.parametrize("module", ["qomni.hil", "qomni.hil.master.client", "qomni.hil.device.server", "qomni.hil.bus", "qomni.vehicle_interface"])
 def test_hil_does_not_import_emulator(module):
     code = (f"import sys, {module}; bad = [m for m in sys.modules if m.split('.')[:2] == ['qomni', 'emulator']];"
             f"assert not bad, bad")

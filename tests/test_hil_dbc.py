@@ -1,4 +1,4 @@
-"""hil.dbc: the DBC generated from the PDO mapping decodes the client's BLF recording to what the client
+"""qomni.hil.tools.dbc: the DBC generated from the PDO mapping decodes the client's BLF recording to what the client
 measured, and follows another mapping (EDS/DCF) like the nodes do."""
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from canopen import objectdictionary as od
 
-from qomni.hil.client import VehicleClient
-from qomni.hil.dbc import build_database, write_dbc
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.tools.dbc import build_database, write_dbc
 from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
 from qomni.hil.pdo_codec import PdoMappingError, build_codec
-from qomni.hil.server import VehicleServer
+from qomni.hil.device.server import VehicleServer
 from qomni.hil.units import counts_to_alpha
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from qomni.hil.client import VehicleClient
-from qomni.hil.decode import DecodeError, DecodeReport, decode_log, node_files
-from qomni.hil.recorder import replay
-from qomni.hil.server import VehicleServer
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
+from qomni.hil.tools.recorder import replay
+from qomni.hil.device.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 N_CYCLES = 40
@@ -111,7 +111,7 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
 
 def test_replay_of_the_master_frames_reproduces_the_run(session):
     """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
-    from qomni.hil.recorder import sent_by_master as _sent_by_master
+    from qomni.hil.tools.recorder import sent_by_master as _sent_by_master
 
     _, logs, _, original = session
     spec = f"virtual:hil-replay-{uuid.uuid4().hex[:8]}"

@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from qomni.hil.client import VehicleClient
-from qomni.hil.hub import Hub, hub_bus_spec
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.tools.hub import Hub, hub_bus_spec
 
 
 QOMNI = [sys.executable, "-c", "from qomni.cli import main; main()"]

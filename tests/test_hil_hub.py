@@ -1,4 +1,4 @@
-"""hil.hub: python-can's unchanged ``socketcand`` client shares one bus through the loopback hub; the
+"""qomni.hil.tools.hub: python-can's unchanged ``socketcand`` client shares one bus through the loopback hub; the
 vehicle server and client run lock-step over it; protocol details, bounds and the loopback-only rule."""
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import can
 import numpy as np
 import pytest
 
-from qomni.hil.client import VehicleClient
-from qomni.hil.hub import Hub, hub_bus_spec, open_hub_bus
-from qomni.hil.server import VehicleServer
+from qomni.hil.master.client import VehicleClient
+from qomni.hil.tools.hub import Hub, hub_bus_spec, open_hub_bus
+from qomni.hil.device.server import VehicleServer
 from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
@@ -223,8 +223,8 @@ def test_bounded_clients_and_buffers():
 
 
 def test_separate_processes_share_the_hub():
-    """``python -m hil.hub`` in its own process; a frame from this process reaches a client process."""
-    with subprocess.Popen([sys.executable, "-m", "qomni.hil.hub", "--port", "0"], stdout=subprocess.PIPE,
+    """``python -m qomni.hil.tools.hub`` in its own process; a frame from this process reaches a client process."""
+    with subprocess.Popen([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0"], stdout=subprocess.PIPE,
                           text=True) as hub:
         try:
             port = int(re.search(r"127\.0\.0\.1:(\d+)", hub.stdout.readline()).group(1))
@@ -255,7 +255,7 @@ def test_bus_spec_reaches_the_hub_and_refuses_other_hosts():
     import can as _can
 
     from qomni.hil.bus import open_bus, parse_bus_spec
-    from qomni.hil.hub import Hub, hub_bus_spec
+    from qomni.hil.tools.hub import Hub, hub_bus_spec
 
     with pytest.raises(ValueError, match="127.0.0.1"):
         parse_bus_spec("socketcand:10.0.0.1:29536/can0")

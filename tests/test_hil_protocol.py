@@ -1,7 +1,7 @@
 """hil devices against independent masters: canopen's BaseNode402 and raw frames on a virtual bus.
 
 Covers CiA 301 (boot-up, NMT gating, SDO, SYNC/TPDO, RPDO, timeouts, malformed frames) and CiA 402
-(power state machine, CST torque) of ``hil.server.VehicleServer`` with a fake plant.
+(power state machine, CST torque) of ``qomni.hil.device.server.VehicleServer`` with a fake plant.
 """
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from canopen.profiles.p402 import BaseNode402
 
-from qomni.hil.drive402 import PowerState, decode_controlword, Command
+from qomni.hil.device.drive402 import PowerState, decode_controlword, Command
 from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
-from qomni.hil.server import VehicleServer
+from qomni.hil.device.server import VehicleServer
 
 T_S = 0.002
 INCREMENTS = 65536
@@ -29,7 +29,7 @@ BITS = 14
 class FakePlant:
     """Per wheel a rigid motor-side inertia (exact double integrator); constant steering angles.
 
-    Implements the duck-typed plant interface of ``hil.server`` and logs every torque it is given.
+    Implements the duck-typed plant interface of ``qomni.hil.device.server`` and logs every torque it is given.
     """
 
     def __init__(self, inertia=0.01, theta0=(0.0,) * 4, omega0=(0.0,) * 4, alpha=(0.3, -3.0)):

@@ -31,7 +31,7 @@ def campaign(
              "emulator; with --bus the vehicle must be lifted, so run 'qomni single-axis' instead)."),
     gui: bool = typer.Option(False, help="Show the PyBullet GUI (needs a display)."),
     faults: Optional[Path] = typer.Option(
-        None, help="Fault plan (TOML, hil/faults.py) injected into the embedded emulator during the "
+        None, help="Fault plan (TOML, hil/device/faults.py) injected into the embedded emulator during the "
                    "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
                    "--faults'."),
     effects: Optional[Path] = typer.Option(
@@ -69,7 +69,7 @@ def campaign(
             run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
-    from qomni.hil.dbc import write_dbc
+    from qomni.hil.tools.dbc import write_dbc
 
     write_dbc(out / "bus.dbc")  # decodes bus.blf in CANoe, cantools, candump-based tools
     rect = json.loads((out / "metadata.json").read_text())["occupied_rectangle"]

@@ -25,7 +25,7 @@ def emulate(
     effects: Optional[Path] = typer.Option(None, help="Effects file (TOML) on top of the ideal vehicle; "
                                            "default: the prototype as described."),
     seed: int = typer.Option(0, help="Seed of the emulator's sensor noise."),
-    faults: Optional[Path] = typer.Option(None, help="Fault plan (TOML, see hil/faults.py): frame loss, "
+    faults: Optional[Path] = typer.Option(None, help="Fault plan (TOML, see hil/device/faults.py): frame loss, "
                                           "latency, power cycles, bus-off, SYNC loss."),
     duration: Optional[float] = typer.Option(None, help="Stop after this many seconds of wall time "
                                              "(default: until Ctrl-C)."),
@@ -39,7 +39,7 @@ def emulate(
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
     from qomni.emulator.vehicle import Emulator
     from qomni.hil.bus import parse_bus_spec
-    from qomni.hil.server import VehicleServer
+    from qomni.hil.device.server import VehicleServer
 
     try:
         parse_bus_spec(bus)
@@ -98,7 +98,7 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
 
     Connect with --bus socketcand:127.0.0.1:PORT/can0 (python-can's socketcand interface).
     """
-    from qomni.hil.hub import Hub, hub_bus_spec
+    from qomni.hil.tools.hub import Hub, hub_bus_spec
 
     with Hub(port=port, max_clients=max_clients) as running:
         console.print(f"hub listening on 127.0.0.1:{running.port}; bus spec "
@@ -127,7 +127,7 @@ def decode(
     """Decode a recorded bus log (ours or another tool's) with the EDS/DCF PDO mapping into a run directory."""
     import json
 
-    from qomni.hil.decode import DecodeError, DecodeReport, decode_log, node_files
+    from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
     from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
     from qomni.ident.rundir import METADATA, SIGNALS
     from qomni.datasheet import DataSheet, DataSheetError
@@ -201,7 +201,7 @@ def replay(
 ):
     """Replay a recorded log onto a bus (python-can LogReader + MessageSync)."""
     from qomni.hil.bus import open_bus
-    from qomni.hil.recorder import replay as replay_log, sent_by_master
+    from qomni.hil.tools.recorder import replay as replay_log, sent_by_master
 
     try:
         target = open_bus(bus)

@@ -41,10 +41,10 @@ def load_effects(path: Optional[Path]):
 
 
 def load_faults(path: Optional[Path]):
-    """The :class:`~qomni.hil.faults.FaultPlan` of ``path``, or None."""
+    """The :class:`~qomni.hil.device.faults.FaultPlan` of ``path``, or None."""
     if path is None:
         return None
-    from qomni.hil.faults import FaultPlan, FaultPlanError
+    from qomni.hil.device.faults import FaultPlan, FaultPlanError
 
     try:
         return FaultPlan.load(path)
@@ -62,7 +62,7 @@ def vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, 
         return embedded_vehicle(load_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
                                 effects=effects,
                                 faults=faults)
-    from qomni.hil.client import VehicleClient
+    from qomni.hil.master.client import VehicleClient
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
 

@@ -1,4 +1,4 @@
-"""CANopen master for the vehicle: the same code drives the emulator (``hil.server``) and the real vehicle.
+"""CANopen master for the vehicle: the same code drives the emulator (``qomni.hil.device.server``) and the real vehicle.
 
 Built on canopen (:class:`canopen.profiles.p402.BaseNode402` for the drives, :class:`canopen.RemoteNode`
 for the encoders, both from the EDS files) and python-can; nothing here knows about the emulator, only
@@ -35,16 +35,16 @@ import numpy as np
 from canopen.profiles.p402 import BaseNode402, State402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from .bus import open_bus
-from .cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
+from ..bus import open_bus
+from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
                   CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
                   MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
                   SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK,
                   supported_mode_bit)
-from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
 from qomni.vehicle_interface import Measurement
-from .pdo_codec import PdoCodec, build_codec, encode_entry
-from .recorder import BusRecorder
+from ..pdo_codec import PdoCodec, build_codec, encode_entry
+from ..tools.recorder import BusRecorder
 
 logger = logging.getLogger(__name__)
 
@@ -99,13 +99,13 @@ class VehicleClient:
     """Master of the vehicle's CANopen network (drives 1…4 = fl, rl, fr, rr; encoders 5, 6 = left, right).
 
     Args:
-        bus: bus spec string (:func:`hil.bus.open_bus`, closed on :meth:`stop`) or an open python-can
+        bus: bus spec string (:func:`qomni.hil.bus.open_bus`, closed on :meth:`stop`) or an open python-can
             bus (left open).
         encoder_increments: motor encoder increments per motor revolution (data sheet).
         steering_sensor_bits: resolution of the steering angle sensors (data sheet).
         cycle_time: s, SYNC period T_s (data sheet); written to 0x1006 of every node.
         record: path of a bus log, or a list of them (``.blf``; ``.log`` = candump ``-L`` format; see
-            :mod:`hil.recorder`): every frame in both directions, flushed by :meth:`stop`.
+            :mod:`qomni.hil.tools.recorder`): every frame in both directions, flushed by :meth:`stop`.
         drive_eds, encoder_eds: EDS files; their PDO mapping is written to the devices.
         configure_pdos: True: write the EDS PDO configuration by SDO; False: read the devices'.
         timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC.

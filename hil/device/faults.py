@@ -2,7 +2,7 @@
 
 A fault plan (TOML, :meth:`FaultPlan.load`) lists the faults; :class:`FaultyBus` applies them to the
 emulator's side of the bus as a python-can :class:`can.BusABC` wrapper around the real bus, and
-:class:`hil.server.VehicleServer` (``faults=``) runs the node-level ones (power cycling). Example::
+:class:`qomni.hil.device.server.VehicleServer` (``faults=``) runs the node-level ones (power cycling). Example::
 
     seed = 1                       # random generator of loss and jitter
 

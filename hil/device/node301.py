@@ -26,7 +26,7 @@ heartbeat producer and the EMCY producer. This module adds what a real device do
   pushed onto the pre-defined error field 0x1003 (newest at sub-index 1, at most 8; writing 0 to
   sub-index 0 clears it, any other value is refused with 0x06090030).
 
-SYNC is not subscribed here: whoever hosts the nodes (``hil.server``) calls, under :attr:`lock`,
+SYNC is not subscribed here: whoever hosts the nodes (``qomni.hil.device.server``) calls, under :attr:`lock`,
 :meth:`sync_receive` on every node, then the device application, then :meth:`sync_transmit`.
 """
 from __future__ import annotations
@@ -43,14 +43,14 @@ from canopen import objectdictionary as od
 from canopen.nmt import NmtSlave
 from canopen.sdo import SdoAbortedError, SdoServer
 
-from .cia import (ABORT_COMMAND_SPECIFIER, ABORT_LENGTH_HIGH, ABORT_LENGTH_LOW, ABORT_NO_DATA,
+from ..cia import (ABORT_COMMAND_SPECIFIER, ABORT_LENGTH_HIGH, ABORT_LENGTH_LOW, ABORT_NO_DATA,
                   ABORT_PDO_LENGTH, ABORT_READ_ONLY,
                   ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_HIGH, ABORT_VALUE_LOW, ABORT_VALUE_RANGE,
                   ABORT_WRITE_ONLY, EMCY_COMMUNICATION, EMCY_HEARTBEAT, EMCY_NO_ERROR, EMCY_PDO_LENGTH,
                   EMCY_RPDO_TIMEOUT, EMCY_SYNC_LENGTH, ERROR_REGISTER_COMMUNICATION, ERROR_REGISTER_GENERIC,
                   INITIALISING, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE, NMT_START,
                   NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED)
-from .pdo_codec import PdoCodec, PdoMappingError, build_codec, check_entry
+from ..pdo_codec import PdoCodec, PdoMappingError, build_codec, check_entry
 
 logger = logging.getLogger(__name__)
 

@@ -26,10 +26,10 @@ up to 5 ms for the GIL).
 Timing statistics (:attr:`VehicleServer.stats`): per SYNC, the latency from the SYNC frame's timestamp
 (python-can ``Message.timestamp``, the bus's receive time) to the moment the last TPDO of that SYNC was
 handed to the bus; a cycle is late if that latency exceeds ``deadline`` (default T_s/2).
-A watchdog thread supervises SYNC/RPDO reception (see ``hil.node301``); a drive that loses its master
+A watchdog thread supervises SYNC/RPDO reception (see ``qomni.hil.device.node301``); a drive that loses its master
 reacts per 0x6007 and its torque is set to 0 at once.
 
-The plant is anything that fills the contract :class:`qomni.hil.plant.Plant` (drive data,
+The plant is anything that fills the contract :class:`qomni.hil.device.plant.Plant` (drive data,
 ``set_motor_torques``, ``step``, ``read_sensors``); this module does not import the emulator.
 """
 from __future__ import annotations
@@ -45,12 +45,12 @@ import can
 import canopen
 import numpy as np
 
-from .bus import open_bus
-from .cia import EMCY_BUS_OFF
+from ..bus import open_bus
+from ..cia import EMCY_BUS_OFF
 from .drive402 import Drive402
 from .encoder406 import Encoder406
 from .faults import FaultInjector, FaultPlan, FaultyBus
-from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 from .plant import Plant
 
 logger = logging.getLogger(__name__)
@@ -121,22 +121,22 @@ class VehicleServer:
     """Hosts a plant on a CAN bus as the vehicle's CANopen devices.
 
     Args:
-        plant: the physics (:class:`qomni.hil.plant.Plant`).
+        plant: the physics (:class:`qomni.hil.device.plant.Plant`).
         bus: a python-can bus (left open on :meth:`stop`) or a bus spec string for
-            :func:`hil.bus.open_bus` (closed on :meth:`stop`).
+            :func:`qomni.hil.bus.open_bus` (closed on :meth:`stop`).
         drive_eds, encoder_eds: EDS files of the devices (default: ``hil/eds``); a file with another
             PDO mapping changes what the nodes send.
         sync_timeout: s, SYNC loss time of the nodes (at least 5·0x1006); ``None`` disables it.
         watchdog_period: s, how often SYNC/RPDO reception is checked.
         realtime: physics paced by the wall clock instead of one step per SYNC (module docstring).
         deadline: s, latency above which a SYNC counts as late (default T_s/2).
-        faults: a :class:`hil.faults.FaultPlan` injected on the emulator's side of the bus.
+        faults: a :class:`qomni.hil.device.faults.FaultPlan` injected on the emulator's side of the bus.
     Attributes:
-        drives: the four :class:`~hil.drive402.Drive402` (fl, rl, fr, rr).
-        encoders: the two :class:`~hil.encoder406.Encoder406` (left, right).
+        drives: the four :class:`~qomni.hil.device.drive402.Drive402` (fl, rl, fr, rr).
+        encoders: the two :class:`~qomni.hil.device.encoder406.Encoder406` (left, right).
         cycles: number of SYNCs processed (= plant steps in lock-step).
         stats: :class:`TimingStats`.
-        injector: the :class:`hil.faults.FaultInjector` (``faults`` given), else None.
+        injector: the :class:`qomni.hil.device.faults.FaultInjector` (``faults`` given), else None.
         error: the exception that stopped SYNC processing, if any (the plant raised); later SYNCs
             are ignored, so the master times out.
     Raises:

@@ -1,15 +1,15 @@
 """A loopback CAN hub speaking the socketcand protocol, so separate processes share one bus without vcan.
 
-Where SocketCAN/vcan does not exist, the emulator (``hil.server``) and a master (``hil.client``, CANoe
-via socketcand, candump-like tools) in different processes meet on this hub: every client connects with
-python-can's own ``socketcand`` interface, unchanged::
+Where SocketCAN/vcan does not exist, the emulator (``qomni.hil.device.server``) and a master
+(``qomni.hil.master.client``, CANoe via socketcand, candump-like tools) in different processes meet on this
+hub: every client connects with python-can's own ``socketcand`` interface, unchanged::
 
     hub = Hub().start()                                   # 127.0.0.1, free port
     bus = can.Bus(interface="socketcand", host="127.0.0.1", port=hub.port, channel="can0")
 
 A frame one client sends reaches every other client in raw mode on the same channel name, never the
 sender (like a CAN controller without self-reception; python-can buses do not receive their own frames
-either). Different channel names are separate buses. Stand-alone: ``python -m hil.hub --port 29536``.
+either). Different channel names are separate buses. Stand-alone: ``python -m qomni.hil.tools.hub --port 29536``.
 
 Protocol (socketcand, https://github.com/linux-can/socketcand ``doc/protocol.md``; the subset python-can's
 ``can.interfaces.socketcand`` client uses), ASCII, each element ``< ... >``:
@@ -61,8 +61,8 @@ def _check_host(host: str) -> str:
 def hub_bus_spec(port: int, channel: str = DEFAULT_CHANNEL, host: str = LOOPBACK) -> str:
     """Bus spec of a hub connection in the grammar ``socketcand:HOST:PORT/CHANNEL``.
 
-    :func:`hil.bus.open_bus` opens it, so ``--bus`` options and :class:`hil.server.VehicleServer` /
-    :class:`hil.client.VehicleClient` take it as a string.
+    :func:`qomni.hil.bus.open_bus` opens it, so ``--bus`` options and :class:`qomni.hil.device.server.VehicleServer` /
+    :class:`qomni.hil.master.client.VehicleClient` take it as a string.
 
     Args:
         port: TCP port of the hub (:attr:`Hub.port`), 1…65535.
@@ -388,8 +388,9 @@ def _parse_send(args: list[str]) -> tuple[int, bool, bytes] | str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m hil.hub [--port N]``: run a hub on 127.0.0.1 until interrupted (Ctrl-C)."""
-    parser = argparse.ArgumentParser(prog="python -m hil.hub", description=__doc__.split("\n\n")[0])
+    """``python -m qomni.hil.tools.hub [--port N]``: run a hub on 127.0.0.1 until interrupted (Ctrl-C)."""
+    parser = argparse.ArgumentParser(prog="python -m qomni.hil.tools.hub",
+                                     description=__doc__.split("\n\n")[0])
     parser.add_argument("--port", type=int, default=29536, help="TCP port on 127.0.0.1 (0: any free port)")
     parser.add_argument("--max-clients", type=int, default=16)
     args = parser.parse_args(argv)

@@ -1,4 +1,4 @@
-"""The plant contract of the CANopen server: what :class:`qomni.hil.server.VehicleServer` needs from the
+"""The plant contract of the CANopen server: what :class:`qomni.hil.device.server.VehicleServer` needs from the
 physics it puts on the bus.
 
 The emulator (:class:`qomni.emulator.vehicle.Emulator`) satisfies :class:`Plant`, and so does any test

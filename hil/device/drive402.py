@@ -8,7 +8,7 @@ control parameter set 0x60F9; common 0x6072 max torque, 0x6076 motor rated torqu
 value, 0x6087 torque slope (per mille/s), 0x6064 position actual and 0x606C velocity actual.
 Units: docs/conventions.md.
 
-Timing (see ``hil.server``): at each SYNC the drive applies the RPDOs received since the last SYNC
+Timing (see ``qomni.hil.device.server``): at each SYNC the drive applies the RPDOs received since the last SYNC
 (controlword first takes effect here) and latches its torque for the coming cycle, in OPERATION
 ENABLED only (else 0):
 
@@ -34,7 +34,7 @@ import logging
 
 from canopen.sdo import SdoAbortedError
 
-from .cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV, MODE_CST,
+from ..cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV, MODE_CST,
                   MODE_NONE, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE, SW_VOLTAGE_ENABLED)
 from .node301 import Node301
 
@@ -127,7 +127,7 @@ class Drive402(Node301):
     """A CiA 402 servo drive in cyclic synchronous torque or velocity mode.
 
     Args:
-        node_id, eds, lock, sync_timeout: see :class:`hil.node301.Node301`.
+        node_id, eds, lock, sync_timeout: see :class:`qomni.hil.device.node301.Node301`.
         name: label for logs (e.g. the wheel 'fl').
     Attributes:
         state: current :class:`PowerState`.

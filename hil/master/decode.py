@@ -1,8 +1,8 @@
 """Decode a recorded CAN log of the vehicle into one :class:`~qomni.vehicle_interface.Measurement` per SYNC.
 
 Works on any log python-can reads (:class:`can.LogReader`: Vector BLF ``.blf`` and ASC ``.asc``,
-candump ``-L`` ``.log``, ``.csv``, PEAK ``.trc``, ``.mf4``), recorded by ``hil.client`` or by other tools,
-with the PDO mapping taken from EDS/DCF files (CiA 306) like the devices do (:mod:`hil.dbc` rules:
+candump ``-L`` ``.log``, ``.csv``, PEAK ``.trc``, ``.mf4``), recorded by ``qomni.hil.master.client`` or by other tools,
+with the PDO mapping taken from EDS/DCF files (CiA 306) like the devices do (:mod:`qomni.hil.tools.dbc` rules:
 DCF ParameterValue, else EDS DefaultValue, ``$NODEID`` resolved).
 
 Per cycle (CiA 301 SYNC semantics, docs/conventions.md):
@@ -12,7 +12,7 @@ Per cycle (CiA 301 SYNC semantics, docs/conventions.md):
 * the commanded torque of the cycle is the last target torque 0x6071 each drive received by RPDO
   before that SYNC (what the drive latched at it);
 * time = k · T_s with k counted from the last NMT start command (0x000, command 1) before the SYNC,
-  as :class:`hil.client.VehicleClient` counts its cycles;
+  as :class:`qomni.hil.master.client.VehicleClient` counts its cycles;
 * units as the client: positions unwrapped across the 32-bit counter (:func:`hil.units.unwrap32`),
   torques from per mille of the motor rated torque 0x6076. 0x6076 comes from the log itself (an
   expedited SDO upload response of 0x6076:00, as every master reads it) if present, else from a DCF's
@@ -32,13 +32,13 @@ import can
 import numpy as np
 from canopen import objectdictionary as od
 
-from .cia import MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS, MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS
-from .cia import NMT_START as _NMT_START
-from .dbc import enabled_pdos, reset_values
-from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
+from ..cia import MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS, MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS
+from ..cia import NMT_START as _NMT_START
+from ..tools.dbc import enabled_pdos, reset_values
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
 from qomni.vehicle_interface import Measurement
-from .pdo_codec import PdoCodec, PdoMappingError, build_codec
-from .units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
+from ..pdo_codec import PdoCodec, PdoMappingError, build_codec
+from ..units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
 
 
 

@@ -25,7 +25,7 @@ device parameter the DBC cannot know), ``inc`` (motor encoder increments), ``inc
 (steering sensor measuring units, 0x6001 per revolution). SI conversion: :mod:`hil.units`.
 
 The mapping read is the one a node uses after NMT reset communication: ParameterValue of a DCF if
-present, else DefaultValue, ``$NODEID`` resolved per node — the same rules as ``hil.node301`` and the
+present, else DefaultValue, ``$NODEID`` resolved per node — the same rules as ``qomni.hil.device.node301`` and the
 validation of :func:`hil.pdo_codec.check_entry` (byte-aligned whole objects, at most 8 bytes).
 """
 from __future__ import annotations
@@ -40,10 +40,10 @@ from canopen import objectdictionary as od
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
-from .cia import (MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY, NMT_COMMAND_NAMES, NMT_STATE_NAMES,
+from ..cia import (MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY, NMT_COMMAND_NAMES, NMT_STATE_NAMES,
                   OBJECT_NAMES, OBJECT_UNITS)
-from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
-from .pdo_codec import PdoMappingError, build_codec, check_entry, decode_entry
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
+from ..pdo_codec import PdoMappingError, build_codec, check_entry, decode_entry
 
 MASTER = "master"
 _COB_ID_INVALID = 1 << 31
@@ -68,7 +68,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
     """The vehicle's DBC database from the active PDO mapping (module docstring for the content).
 
     Args:
-        drive_eds: EDS/DCF of the drives: one file for all four (as :class:`hil.server.VehicleServer`
+        drive_eds: EDS/DCF of the drives: one file for all four (as :class:`qomni.hil.device.server.VehicleServer`
             uses) or a sequence of four, order fl, rl, fr, rr (nodes 1…4).
         encoder_eds: EDS/DCF of the steering encoders: one file or two (left, right; nodes 5, 6).
     Returns:

@@ -18,8 +18,8 @@ from pathlib import Path
 from canopen import objectdictionary as od
 
 from .dbc import enabled_pdos, reset_values
-from .layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS
-from .pdo_codec import build_codec
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS
+from ..pdo_codec import build_codec
 
 
 def frame_bits(data_bytes: int) -> int:
@@ -59,7 +59,7 @@ def bus_load(bitrate: int, cycle_time: float | None = None, files: dict[int, Pat
     Args:
         bitrate: bit/s, e.g. 1_000_000.
         cycle_time: s, T_s; default: 0x1006 of the first node's file.
-        files: node id → EDS/DCF (:func:`hil.decode.node_files`); default: the shipped EDS files.
+        files: node id → EDS/DCF (:func:`qomni.hil.master.decode.node_files`); default: the shipped EDS files.
     Raises:
         ValueError: non-positive bitrate or cycle time, or an unusable mapping.
     """
