@@ -15,17 +15,17 @@ from pathlib import Path
 import numpy as np
 
 from qomni.vehicle_interface import Measurement
-from qomni.ident.symbolic import WHEELS
+from qomni.conventions import WHEELS
+
+from .plant_spec import OUTPUTS
 
 MOTOR_TORQUE = tuple(f"motor_torque.{w}" for w in WHEELS)
-MOTOR_POSITION = tuple(f"motor_position.{w}" for w in WHEELS)
-MOTOR_VELOCITY = tuple(f"motor_velocity.{w}" for w in WHEELS)
-POSE = ("x_w", "y_w", "gamma_ch")
-VELOCITY = ("x_ch_dot", "y_ch_dot", "gamma_ch_dot")
-ALPHA = ("alpha_l", "alpha_r")
-ALPHA_DOT = ("alpha_l_dot", "alpha_r_dot")
-REAL_OUTPUTS = POSE + VELOCITY + ALPHA + ALPHA_DOT + MOTOR_POSITION + MOTOR_VELOCITY
-"""The plant FMU's Float64 outputs, in this order (units: fmu.export.plant_variables)."""
+REAL_OUTPUTS = tuple(name for name, *_ in OUTPUTS)
+"""The plant FMU's Float64 outputs, in this order (:data:`qomni.fmu.plant_spec.OUTPUTS`)."""
+MOTOR_POSITION = tuple(n for n in REAL_OUTPUTS if n.startswith("motor_position."))
+MOTOR_VELOCITY = tuple(n for n in REAL_OUTPUTS if n.startswith("motor_velocity."))
+POSE, VELOCITY = REAL_OUTPUTS[0:3], REAL_OUTPUTS[3:6]
+ALPHA, ALPHA_DOT = REAL_OUTPUTS[6:8], REAL_OUTPUTS[8:10]
 
 
 class FmuSlave:

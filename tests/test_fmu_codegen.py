@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from qomni.fmu import codegen
-from qomni.fmu.export import c_source_directory
+from qomni.fmu.build import c_source_directory
 from qomni.ident import kinematics
 from qomni.datasheet import DataSheet, Geometry
 from qomni.ident.dynamics import feedforward

@@ -17,7 +17,8 @@ from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from fmpy.fmi3 import FMU3Slave  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
-from qomni.fmu.export import c_source_directory, export_feedforward_fmu  # noqa: E402
+from qomni.fmu.build import c_source_directory  # noqa: E402
+from qomni.fmu.export import export_feedforward_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import feedforward  # noqa: E402

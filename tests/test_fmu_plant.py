@@ -16,7 +16,8 @@ from fmpy.validation import validate_fmu  # noqa: E402
 from qomni.fmu import codegen  # noqa: E402
 from qomni.fmu import plant_reference as R  # noqa: E402
 from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave, PlantVehicle  # noqa: E402
-from qomni.fmu.export import c_source_directory, export_plant_fmu  # noqa: E402
+from qomni.fmu.build import c_source_directory  # noqa: E402
+from qomni.fmu.export import export_plant_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import forward_dynamics  # noqa: E402

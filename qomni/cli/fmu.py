@@ -23,27 +23,25 @@ def export_fmu(
     vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
-    from qomni.fmu.export import FmuExportError, export_feedforward_fmu, export_plant_fmu
-    from qomni.ident.rundir import datasheet_from_metadata, load_identification
+    from qomni.fmu.export import MODELS, FmuExportError, export_fmu
+    from qomni.ident.rundir import METADATA, datasheet_from_metadata, load_identification
 
-    exporters = {"feedforward": (export_feedforward_fmu, "feed-forward law (21)"),
-                 "plant": (export_plant_fmu, "plant, reduced dynamics (19)/(20) per motion mode")}
-    if kind not in exporters:
-        fail(f"--kind must be 'plant' or 'feedforward', got {kind!r}")
+    if kind not in MODELS:
+        fail(f"--kind must be one of {', '.join(sorted(MODELS))}, got {kind!r}")
     if fmi not in (2, 3):
         fail(f"--fmi must be 2 or 3, got {fmi}")
     run_dir = source if source.is_dir() else source.parent
     if vehicle is not None:
         sheet = load_datasheet(vehicle, None)
     else:
-        meta = run_dir / "metadata.json"
+        meta = run_dir / METADATA
         if not meta.exists():
             fail(f"{meta} not found: pass --vehicle with the data sheet")
         sheet = guarded(lambda: datasheet_from_metadata(json.loads(meta.read_text()), str(meta)))
     result = guarded(lambda: load_identification(source))
     try:
-        path = exporters[kind][0](result, sheet, out, fmi_version=fmi)
+        path = export_fmu(MODELS[kind], result, sheet, out, fmi_version=fmi)
     except (FmuExportError, ValueError) as exc:
         fail(str(exc))
-    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {exporters[kind][1]})")
+    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {MODELS[kind].summary})")
 

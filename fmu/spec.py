@@ -1,0 +1,42 @@
+"""The FMU model spec: everything the generic build needs to know of one model (its variables, its C
+sources and generated code, its direct dependencies, its internal state size), so that a model is one spec
+module (:mod:`.feedforward_spec`, :mod:`.plant_spec`) plus its C code under ``fmu/c/<model_dir>``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from .codegen import GeneratedCode
+from .variables import Variable
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One FMU model.
+
+    Attributes:
+        kind: ``"feedforward"`` or ``"plant"`` (the CLI's ``--kind``).
+        default_identifier: model identifier (C identifier of the model and binary) when none is given.
+        model_dir: folder of the model's C sources under ``fmu/c``.
+        model_sources: the model's C files in that folder.
+        generate: ``() -> GeneratedCode``, the sympy-generated C of the model's equations.
+        variables: ``(p {name: value}, geometry, i_G, eps [rad/s], std {name: σ}) -> [Variable]`` in value
+            reference order (:func:`qomni.fmu.variables.number_variables` applied).
+        dependencies: names of the inputs every output depends on directly (ModelStructure).
+        config_prefix: prefix of the group macros in ``config.h`` (``<prefix>_<GROUP>``).
+        n_states: doubles of internal state the FMU state (get/set/serialize) carries.
+        description: modelDescription's description, ``{name}`` = the vehicle's name.
+        summary: one line for the CLI.
+    """
+
+    kind: str
+    default_identifier: str
+    model_dir: str
+    model_sources: tuple[str, ...]
+    generate: Callable[[], GeneratedCode]
+    variables: Callable[..., list[Variable]]
+    dependencies: tuple[str, ...]
+    config_prefix: str
+    n_states: int
+    description: str
+    summary: str
