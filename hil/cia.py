@@ -79,6 +79,10 @@ MEASURED_DRIVE_OBJECTS: dict[tuple[int, int], str] = {
 #: What the master reads from each steering encoder's synchronous TPDO every cycle.
 MEASURED_ENCODER_OBJECTS: dict[tuple[int, int], str] = {(POSITION_VALUE, 0): "counts"}
 
+#: COB-ID bits of the PDO/EMCY communication objects (CiA 301 §7.5.2.35/36): 31 = not valid, 29 = 29-bit ID.
+COB_ID_INVALID = 1 << 31
+COB_ID_EXTENDED = 1 << 29
+
 # --- NMT (CiA 301 §7.2.8, §7.3.2.2) ------------------------------------------------------------------
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0, 4, 5, 127
 NMT_START, NMT_STOP, NMT_PRE_OPERATIONAL, NMT_RESET_NODE, NMT_RESET_COMMUNICATION = 1, 2, 128, 129, 130

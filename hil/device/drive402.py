@@ -34,8 +34,9 @@ import logging
 
 from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV, MODE_CST,
-                  MODE_NONE, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE, SW_VOLTAGE_ENABLED)
+from ..cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV,
+                   MODE_CST, MODE_NONE, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE,
+                   SW_VOLTAGE_ENABLED)
 from .node301 import Node301
 
 logger = logging.getLogger(__name__)

@@ -33,105 +33,29 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import canopen
 from canopen import objectdictionary as od
-from canopen.nmt import NmtSlave
-from canopen.sdo import SdoAbortedError, SdoServer
+from canopen.nmt import NMT_STATES
+from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_COMMAND_SPECIFIER, ABORT_LENGTH_HIGH, ABORT_LENGTH_LOW, ABORT_NO_DATA,
-                  ABORT_PDO_LENGTH, ABORT_READ_ONLY,
-                  ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_HIGH, ABORT_VALUE_LOW, ABORT_VALUE_RANGE,
-                  ABORT_WRITE_ONLY, EMCY_COMMUNICATION, EMCY_HEARTBEAT, EMCY_NO_ERROR, EMCY_PDO_LENGTH,
-                  EMCY_RPDO_TIMEOUT, EMCY_SYNC_LENGTH, ERROR_REGISTER_COMMUNICATION, ERROR_REGISTER_GENERIC,
-                  INITIALISING, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE, NMT_START,
-                  NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED)
-from ..pdo_codec import PdoCodec, PdoMappingError, build_codec, check_entry
+from ..cia import (ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_VALUE_HIGH, ABORT_VALUE_LOW, ABORT_VALUE_RANGE,
+                   ABORT_WRITE_ONLY, CONSUMER_HEARTBEAT_TIME, INITIALISING, PRE_DEFINED_ERROR_FIELD)
+from .emcy import EmcyService
+from .nmt import NmtService, NodeNmt
+from .pdo import PdoService, _Pdo
+from .sdo_server import GatedSdoServer, check_length
+from .supervision import SupervisionService
 
 logger = logging.getLogger(__name__)
 
-_NMT_TARGET = {NMT_START: OPERATIONAL, NMT_STOP: STOPPED, NMT_PRE_OPERATIONAL: PRE_OPERATIONAL}
-
-COB_ID_INVALID = 1 << 31
-_COB_ID_EXTENDED = 1 << 29
-
-_COMM_RANGE = (0x1000, 0x2000)   # reset communication restores these (CiA 301 §7.3.2.2)
-_ERROR_FIELD = 0x1003
-_HEARTBEAT_CONSUMER = 0x1016
-_SDO_EXPEDITED, _SDO_SIZE_SPECIFIED = 0x02, 0x01
-_SDO_SEGMENT_REQUESTS = (0x00, 0x60)     # download / upload segment (client command specifier 0, 3)
-_SDO_ABORT_REQUEST = 0x80
+#: canopen's NMT state names (``NmtBase.state``) → CiA 301 state codes.
+_STATE_CODES = {name: code for code, name in NMT_STATES.items()}
 
 
-@dataclass
-class _Pdo:
-    number: int          # 1-based
-    cob_id: int
-    trans_type: int
-    event_timer_ms: int
-    codec: PdoCodec
-    last_rx: float | None = None
-    last_data: bytes | None = None
-
-
-class _Nmt(NmtSlave):
-    """NMT slave whose commands go to the node (reset behaviour, PDO gating)."""
-
-    def on_command(self, can_id, data, timestamp):
-        self._local_node._on_nmt_command(data)
-
-
-class _GatedSdoServer(SdoServer):
-    """SDO server answering only in PRE-OPERATIONAL/OPERATIONAL and only 8-byte requests.
-
-    Beyond canopen's server: an initiate download (expedited or segmented) is checked at once for an
-    existing, writable object and, where the size is indicated, for the data type's length; an
-    expedited download without size indication carries the object's own length (CiA 301 §7.2.4.3.3).
-    """
-
-    def on_request(self, can_id, data, timestamp):
-        node = self._node
-        if len(data) != 8 or node.nmt_state not in (PRE_OPERATIONAL, OPERATIONAL):
-            return
-        with node.lock:
-            ccs = data[0] & 0xE0
-            if ccs in _SDO_SEGMENT_REQUESTS:
-                if self._buffer is None:                 # no transfer in progress
-                    self.abort(ABORT_COMMAND_SPECIFIER)
-                    return
-            elif ccs != _SDO_ABORT_REQUEST:
-                self._index, self._subindex = data[1] | data[2] << 8, data[3]   # echoed by an abort
-                self._buffer = None
-            super().on_request(can_id, data, timestamp)
-
-    def init_download(self, request):
-        command = request[0]
-        index, subindex = request[1] | request[2] << 8, request[3]
-        obj = self._node._find_object(index, subindex)
-        if not obj.writable:
-            raise SdoAbortedError(ABORT_READ_ONLY)
-        if obj.data_type in od.NUMBER_TYPES:
-            size = len(obj) // 8
-            if command & _SDO_EXPEDITED and not command & _SDO_SIZE_SPECIFIED and size <= 4:
-                request = bytearray(request)
-                request[0] = command | _SDO_SIZE_SPECIFIED | (4 - size) << 2
-            elif command & _SDO_SIZE_SPECIFIED and not command & _SDO_EXPEDITED:
-                _check_length(int.from_bytes(request[4:8], "little"), size)
-        super().init_download(request)
-
-
-def _check_length(given: int, expected: int) -> None:
-    if given > expected:
-        raise SdoAbortedError(ABORT_LENGTH_HIGH)
-    if given < expected:
-        raise SdoAbortedError(ABORT_LENGTH_LOW)
-
-
-class Node301(canopen.LocalNode):
+class Node301(NmtService, PdoService, SupervisionService, EmcyService, canopen.LocalNode):
     """A CiA 301 device built from an EDS file.
 
     Object values live in one store (``(index, subindex) → value``) initialised from the EDS
@@ -155,9 +79,10 @@ class Node301(canopen.LocalNode):
             raise ValueError(f"node id must be 1…127, got {node_id}")
         super().__init__(node_id, eds if isinstance(eds, od.ObjectDictionary) else str(eds))
         self.lock = lock if lock is not None else threading.RLock()
+        self.powered = True
         self.sync_timeout = sync_timeout
-        self.sdo = _GatedSdoServer(0x600 + self.id, 0x580 + self.id, self)
-        self.nmt = _Nmt(self.id, self)
+        self.sdo = GatedSdoServer(0x600 + self.id, 0x580 + self.id, self)
+        self.nmt = NodeNmt(self.id, self)
         self._defaults: dict[tuple[int, int], Any] = {}
         for obj in self.object_dictionary.values():
             for var in ([obj] if isinstance(obj, od.ODVariable) else obj.values()):
@@ -178,15 +103,17 @@ class Node301(canopen.LocalNode):
         self._rpdo_lost = False
         self._heartbeat_lost = False
         self._consumers: dict[int, list] = {}       # producer id → [timeout s, last heartbeat | None]
-        self.powered = True
         self._compile_pdos()
         self._compile_consumers()
 
     # ------------------------------------------------------------------ state
     @property
     def nmt_state(self) -> int:
-        """NMT state code: 0 INITIALISING, 4 STOPPED, 5 OPERATIONAL, 127 PRE-OPERATIONAL."""
-        return self.nmt._state
+        """NMT state code: 0 INITIALISING, 4 STOPPED, 5 OPERATIONAL, 127 PRE-OPERATIONAL; INITIALISING while
+        the node has no power (:meth:`power_off`)."""
+        if not self.powered:
+            return INITIALISING
+        return _STATE_CODES.get(self.nmt.state, INITIALISING)
 
     @property
     def sync_count(self) -> int:
@@ -223,7 +150,7 @@ class Node301(canopen.LocalNode):
             if check_writable and not obj.writable:
                 raise SdoAbortedError(ABORT_READ_ONLY)
             if obj.data_type in od.NUMBER_TYPES:
-                _check_length(len(data), len(obj) // 8)
+                check_length(len(data), len(obj) // 8)
             value = obj.decode_raw(bytes(data))
             if obj.max is not None and value > obj.max:
                 raise SdoAbortedError(ABORT_VALUE_HIGH)
@@ -239,7 +166,7 @@ class Node301(canopen.LocalNode):
         """
         if 0x1400 <= index < 0x1C00:
             self._validate_pdo_parameter(index, subindex, value)
-        elif index == _ERROR_FIELD and subindex == 0 and value != 0:
+        elif index == PRE_DEFINED_ERROR_FIELD and subindex == 0 and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         self.validate_write(index, subindex, value)
         self.values[(index, subindex)] = value
@@ -247,9 +174,9 @@ class Node301(canopen.LocalNode):
             self._compile_pdos()
         elif index == 0x1017 and self.nmt_state != INITIALISING:
             self.nmt.start_heartbeat(int(value))
-        elif index == _ERROR_FIELD:
+        elif index == PRE_DEFINED_ERROR_FIELD:
             self._clear_error_field()
-        elif index == _HEARTBEAT_CONSUMER:
+        elif index == CONSUMER_HEARTBEAT_TIME:
             self._compile_consumers()
         self.on_write(index, subindex, value)
 
@@ -269,359 +196,4 @@ class Node301(canopen.LocalNode):
     def on_communication_lost(self, emcy_code: int) -> None:
         """Hook: SYNC loss (0x8100) or RPDO timeout (0x8250) was detected."""
 
-    # -------------------------------------------------------------- NMT
-    def boot(self, application: bool = True) -> None:
-        """Power-on / NMT reset: restore defaults, send the boot-up message, enter PRE-OPERATIONAL.
 
-        Args:
-            application: True for reset node (all objects), False for reset communication
-                (0x1000…0x1FFF only).
-        """
-        with self.lock:
-            self.nmt.stop_heartbeat()
-            if self.nmt_state == OPERATIONAL:
-                self._leave_operational()
-            for key, value in self._defaults.items():
-                if application or _COMM_RANGE[0] <= key[0] < _COMM_RANGE[1]:
-                    self.values[key] = value
-            self._sync_lost = self._rpdo_lost = self._heartbeat_lost = False
-            self.values[(0x1001, 0)] = 0
-            if application:
-                self._clear_error_field()
-            self._compile_pdos()
-            self._compile_consumers()
-            if application:
-                self.on_reset_application()
-            self.nmt.send_command(NMT_RESET_NODE)        # state INITIALISING, sends boot-up
-            self.nmt.send_command(NMT_PRE_OPERATIONAL)   # starts the heartbeat producer (0x1017)
-
-    def shutdown(self) -> None:
-        """Stop the heartbeat producer (power off); the node stays attached to its network."""
-        with self.lock:
-            self.nmt.stop_heartbeat()
-
-    def power_off(self) -> None:
-        """Lose power (fault injection): silent on the bus, deaf to every frame, until :meth:`power_on`."""
-        with self.lock:
-            self.nmt.stop_heartbeat()
-            if self.nmt_state == OPERATIONAL:
-                self._leave_operational()
-            self.nmt._state = INITIALISING
-            self.powered = False
-            self.on_power_off()
-
-    def power_on(self) -> None:
-        """Power returns: the node boots like at power-on (defaults, boot-up message, PRE-OPERATIONAL)."""
-        with self.lock:
-            self.powered = True
-            self.boot(application=True)
-
-    def on_power_off(self) -> None:
-        """Hook: the node lost power (its outputs go dead)."""
-
-    def _on_nmt_command(self, data) -> None:
-        if len(data) != 2:
-            return
-        command, node_id = data[0], data[1]
-        if node_id not in (0, self.id) or not self.powered:
-            return
-        with self.lock:
-            if command == NMT_RESET_NODE:
-                self.boot(application=True)
-            elif command == NMT_RESET_COMMUNICATION:
-                self.boot(application=False)
-            elif command in _NMT_TARGET and self.nmt_state != INITIALISING:
-                old, new = self.nmt_state, _NMT_TARGET[command]
-                if old == new:
-                    return
-                if old == OPERATIONAL:
-                    self._leave_operational()
-                if new == OPERATIONAL:
-                    self._sync_count = 0
-                    self._last_sync = None
-                    self._pending.clear()
-                    for pdo in self._tpdos:
-                        pdo.last_data = None
-                    for pdo in self._rpdos.values():
-                        pdo.last_rx = None
-                self.nmt.send_command(command)
-
-    def _leave_operational(self) -> None:
-        self._pending.clear()
-        self._last_sync = None
-        self.on_leave_operational()
-
-    # -------------------------------------------------------------- PDO
-    def associate_network(self, network: canopen.Network) -> None:
-        super().associate_network(network)
-        self._subscribe_rpdos()
-        self._subscribe_consumers()
-
-    def remove_network(self) -> None:
-        if self.has_network():
-            for cob_id in self._subscribed:
-                self.network.unsubscribe(cob_id, self._on_rpdo)
-            self._subscribed = []
-            for producer in self._consumers:
-                self.network.unsubscribe(0x700 + producer, self._on_heartbeat)
-        super().remove_network()
-
-    def _validate_pdo_parameter(self, index: int, subindex: int, value) -> None:
-        receive = index < 0x1800
-        if 0x1400 <= index < 0x1600 or 0x1800 <= index < 0x1A00:          # communication parameter
-            if subindex == 1:
-                current = self.values[(index, 1)]
-                if value & _COB_ID_EXTENDED:
-                    raise SdoAbortedError(ABORT_VALUE_RANGE)
-                if not value & COB_ID_INVALID:
-                    if not current & COB_ID_INVALID and (value ^ current) & 0x7FF:
-                        raise SdoAbortedError(ABORT_VALUE_RANGE)   # change COB-ID only while invalid
-                    self._check_mapping(index + 0x200, receive)
-            elif subindex == 2 and not (0 <= value <= 240 or value >= 254):
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
-            return
-        comm = index - 0x200                                                # mapping parameter
-        if comm not in self.object_dictionary:
-            return
-        if not self.values[(comm, 1)] & COB_ID_INVALID:
-            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)        # mapping of a valid PDO
-        if subindex == 0:
-            if value > 8:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
-            self._check_mapping(index, receive, count=value)
-        else:
-            if self.values[(index, 0)] != 0:
-                raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)    # sub-index 0 must be 0 first
-            if value:
-                try:
-                    check_entry(self.object_dictionary, value, receive)
-                except PdoMappingError as exc:
-                    raise SdoAbortedError(exc.code) from None
-
-    def _check_mapping(self, map_index: int, receive: bool, count: int | None = None) -> PdoCodec:
-        if count is None:
-            count = self.values[(map_index, 0)]
-        try:
-            entries = [self.values[(map_index, s)] for s in range(1, count + 1)]
-            return build_codec(self.object_dictionary, entries, receive)
-        except KeyError:
-            raise SdoAbortedError(ABORT_PDO_LENGTH) from None
-        except PdoMappingError as exc:
-            raise SdoAbortedError(exc.code) from None
-
-    def _compile_pdos(self) -> None:
-        rpdos: dict[int, _Pdo] = {}
-        tpdos: list[_Pdo] = []
-        for base, receive, numbers in ((0x1400, True, self._pdo_numbers[0]),
-                                       (0x1800, False, self._pdo_numbers[1])):
-            for n in numbers:
-                comm = base + n
-                cob_id = self.values.get((comm, 1), COB_ID_INVALID)
-                if cob_id & COB_ID_INVALID or comm + 0x200 not in self.object_dictionary:
-                    continue
-                try:
-                    codec = self._check_mapping(comm + 0x200, receive)
-                except SdoAbortedError:
-                    logger.warning("node %d: %s PDO %d has an invalid mapping, not used",
-                                   self.id, "receive" if receive else "transmit", n + 1)
-                    continue
-                pdo = _Pdo(n + 1, cob_id & 0x7FF, self.values.get((comm, 2), 255),
-                           self.values.get((comm, 5), 0), codec)
-                if receive:
-                    rpdos[pdo.cob_id] = pdo
-                else:
-                    tpdos.append(pdo)
-        self._rpdos, self._tpdos = rpdos, tpdos
-        self._pending.clear()
-        if self.has_network():
-            self._subscribe_rpdos()
-
-    def _subscribe_rpdos(self) -> None:
-        for cob_id in self._subscribed:
-            self.network.unsubscribe(cob_id, self._on_rpdo)
-        self._subscribed = list(self._rpdos)
-        for cob_id in self._subscribed:
-            self.network.subscribe(cob_id, self._on_rpdo)
-
-    def _on_rpdo(self, can_id: int, data, timestamp: float) -> None:
-        with self.lock:
-            if self.nmt._state != OPERATIONAL:
-                return
-            pdo = self._rpdos.get(can_id)
-            if pdo is None:
-                return
-            if len(data) < pdo.codec.size:
-                self.emcy_send(EMCY_PDO_LENGTH, bytes(data[:5]))
-                return
-            values = pdo.codec.unpack(data)
-            pdo.last_rx = time.monotonic()
-            if self._rpdo_lost:
-                self._rpdo_lost = False
-                self._maybe_clear_communication_error()
-            if pdo.trans_type <= 240:
-                self._pending[can_id] = (pdo, values)
-            else:
-                self._apply(pdo, values)
-
-    def _apply(self, pdo: _Pdo, values: tuple) -> None:
-        for key, value in zip(pdo.codec.keys, values):
-            try:
-                self.write_value(key[0], key[1], value)
-            except SdoAbortedError as exc:
-                logger.debug("node %d: RPDO %d value 0x%04X:%02X = %r rejected (0x%08X)",
-                             self.id, pdo.number, key[0], key[1], value, exc.code)
-
-    # ------------------------------------------------------------- SYNC
-    def sync_receive(self, now: float) -> bool:
-        """SYNC phase 1 (call with :attr:`lock` held): count the SYNC, apply buffered synchronous RPDOs.
-
-        Args:
-            now: s, a monotonic clock reading, used only for SYNC-loss supervision.
-        Returns:
-            True if the node is OPERATIONAL (takes part in this SYNC).
-        """
-        if self.nmt._state != OPERATIONAL:
-            return False
-        self._sync_count += 1
-        self._last_sync = now
-        if self._sync_lost:
-            self._sync_lost = False
-            self._maybe_clear_communication_error()
-        if self._pending:
-            for pdo, values in list(self._pending.values()):
-                self._apply(pdo, values)
-            self._pending.clear()
-        return True
-
-    def sync_transmit(self) -> None:
-        """SYNC phase 3 (call with :attr:`lock` held): send the TPDOs due at this SYNC (OPERATIONAL only)."""
-        if self.nmt._state != OPERATIONAL:
-            return
-        count, values, send = self._sync_count, self.values, self.network.send_message
-        for pdo in self._tpdos:
-            trans = pdo.trans_type
-            if 1 <= trans <= 240:
-                if count % trans:
-                    continue
-                data = pdo.codec.pack_from(values)
-            else:
-                data = pdo.codec.pack_from(values)
-                if data == pdo.last_data:
-                    continue
-                pdo.last_data = data
-            send(pdo.cob_id, data)
-
-    def sync_length_error(self) -> None:
-        """Report a SYNC frame with a DLC above 1 (EMCY 0x8240); the SYNC is not processed."""
-        with self.lock:
-            self.emcy_send(EMCY_SYNC_LENGTH)
-
-    # ------------------------------------------------------- supervision
-    def check_timeouts(self, now: float) -> bool:
-        """Supervise SYNC and RPDO reception; call periodically from a watchdog thread.
-
-        Args:
-            now: s, same monotonic clock as passed to :meth:`sync_receive`.
-        Returns:
-            True if a loss was detected at this call.
-        """
-        with self.lock:
-            tripped = False
-            if self.nmt._state in (PRE_OPERATIONAL, OPERATIONAL):
-                for producer, entry in self._consumers.items():
-                    if entry[1] is not None and now - entry[1] > entry[0]:
-                        entry[1] = None
-                        self._heartbeat_lost = True
-                        self._communication_lost(EMCY_HEARTBEAT, bytes([producer]))
-                        tripped = True
-            if self.nmt._state != OPERATIONAL:
-                return tripped
-            if self.sync_timeout is not None and self._last_sync is not None:
-                period = self.values.get((0x1006, 0), 0) * 1e-6
-                if now - self._last_sync > max(self.sync_timeout, self.SYNC_LOSS_CYCLES * period):
-                    self._last_sync = None
-                    self._sync_lost = True
-                    self._communication_lost(EMCY_COMMUNICATION)
-                    tripped = True
-            # The RPDO deadline never trips before the node's SYNC-loss time: a lock-step host sets a
-            # long sync_timeout because a loaded machine may pause its master, which is no bus fault.
-            floor = self.sync_timeout or 0.0
-            for pdo in self._rpdos.values():
-                if pdo.event_timer_ms and pdo.last_rx is not None and \
-                        now - pdo.last_rx > max(pdo.event_timer_ms * 1e-3, floor):
-                    pdo.last_rx = None
-                    self._rpdo_lost = True
-                    self._communication_lost(EMCY_RPDO_TIMEOUT)
-                    tripped = True
-            return tripped
-
-    def _communication_lost(self, code: int, data: bytes = b"") -> None:
-        self.values[(0x1001, 0)] |= ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION
-        logger.warning("node %d: communication lost (EMCY 0x%04X)", self.id, code)
-        self.emcy_send(code, data)
-        self.on_communication_lost(code)
-
-    def _maybe_clear_communication_error(self) -> None:
-        if not (self._sync_lost or self._rpdo_lost or self._heartbeat_lost) and self.values[(0x1001, 0)]:
-            self.values[(0x1001, 0)] &= ~(ERROR_REGISTER_GENERIC | ERROR_REGISTER_COMMUNICATION)
-            self.emcy_send(EMCY_NO_ERROR)
-
-    # ---------------------------------------------------- heartbeat consumer
-    def _compile_consumers(self) -> None:
-        if _HEARTBEAT_CONSUMER not in self.object_dictionary:
-            return
-        consumers: dict[int, list] = {}
-        for sub in range(1, 128):
-            entry = self.values.get((_HEARTBEAT_CONSUMER, sub))
-            if entry is None:
-                break
-            producer, time_ms = (entry >> 16) & 0xFF, entry & 0xFFFF
-            if 1 <= producer <= 127 and time_ms:
-                consumers[producer] = [time_ms * 1e-3, None]
-        if self.has_network():
-            for producer in self._consumers:
-                self.network.unsubscribe(0x700 + producer, self._on_heartbeat)
-        self._consumers = consumers
-        if self._heartbeat_lost:
-            self._heartbeat_lost = False
-            self._maybe_clear_communication_error()
-        if self.has_network():
-            self._subscribe_consumers()
-
-    def _subscribe_consumers(self) -> None:
-        for producer in self._consumers:
-            self.network.subscribe(0x700 + producer, self._on_heartbeat)
-
-    def _on_heartbeat(self, can_id: int, data, timestamp: float) -> None:
-        if len(data) != 1:
-            return
-        with self.lock:
-            entry = self._consumers.get(can_id - 0x700)
-            if entry is None:
-                return
-            entry[1] = time.monotonic()
-            if self._heartbeat_lost and all(e[1] is not None for e in self._consumers.values()):
-                self._heartbeat_lost = False
-                self._maybe_clear_communication_error()
-
-    # ------------------------------------------------------------- EMCY
-    def emcy_send(self, code: int, data: bytes = b"") -> None:
-        """Send an EMCY frame (CiA 301 §7.2.7) with the current error register; not in STOPPED.
-
-        A non-zero ``code`` is also recorded in the pre-defined error field 0x1003 (if the node has it).
-        """
-        if code and (_ERROR_FIELD, 1) in self.values:
-            size = 1
-            while (_ERROR_FIELD, size + 1) in self.values:
-                size += 1
-            for sub in range(size, 1, -1):
-                self.values[(_ERROR_FIELD, sub)] = self.values[(_ERROR_FIELD, sub - 1)]
-            self.values[(_ERROR_FIELD, 1)] = code
-            self.values[(_ERROR_FIELD, 0)] = min(self.values[(_ERROR_FIELD, 0)] + 1, size)
-        if self.nmt._state in (PRE_OPERATIONAL, OPERATIONAL) and self.has_network():
-            self.emcy.send(code, self.values.get((0x1001, 0), 0), data)
-
-    def _clear_error_field(self) -> None:
-        for key in self.values:
-            if key[0] == _ERROR_FIELD:
-                self.values[key] = 0

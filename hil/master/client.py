@@ -37,10 +37,10 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ..bus import open_bus
 from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
-                  CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
-                  MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
-                  SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK,
-                  supported_mode_bit)
+                   CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
+                   MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
+                   SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK,
+                   supported_mode_bit)
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
 from qomni.vehicle_interface import Measurement
 from ..pdo_codec import PdoCodec, build_codec, encode_entry

@@ -40,14 +40,12 @@ from canopen import objectdictionary as od
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
-from ..cia import (MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY, NMT_COMMAND_NAMES, NMT_STATE_NAMES,
-                  OBJECT_NAMES, OBJECT_UNITS)
+from ..cia import (COB_ID_EXTENDED, COB_ID_INVALID, MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY,
+                   NMT_COMMAND_NAMES, NMT_STATE_NAMES, OBJECT_NAMES, OBJECT_UNITS)
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 from ..pdo_codec import PdoMappingError, build_codec, check_entry, decode_entry
 
 MASTER = "master"
-_COB_ID_INVALID = 1 << 31
-_COB_ID_EXTENDED = 1 << 29
 
 _UNIT_NOTES = {
     "permille": "per mille of motor rated torque 0x6076",
@@ -158,9 +156,9 @@ def enabled_pdos(dictionary: od.ObjectDictionary, values: dict):
             comm = base + n
             if comm not in dictionary:
                 continue
-            cob_id = values.get((comm, 1), _COB_ID_INVALID)
+            cob_id = values.get((comm, 1), COB_ID_INVALID)
             count = values.get((comm + 0x200, 0), 0)
-            if cob_id & _COB_ID_INVALID or comm + 0x200 not in dictionary or not count:
+            if cob_id & COB_ID_INVALID or comm + 0x200 not in dictionary or not count:
                 continue
             yield receive, n, comm, cob_id, count
 
@@ -191,7 +189,7 @@ def _pdo_messages(dictionary, values, node_id: int, name: str, path) -> list[Mes
         cycle_ms = None
         if 1 <= trans_type <= 240 and period_us and (trans_type * period_us) % 1000 == 0:
             cycle_ms = trans_type * period_us // 1000
-        extended = bool(cob_id & _COB_ID_EXTENDED)
+        extended = bool(cob_id & COB_ID_EXTENDED)
         messages.append(Message(
             frame_id=cob_id & (0x1FFFFFFF if extended else 0x7FF), name=f"{name}_{kind}{n + 1}",
             length=codec.size, signals=signals, senders=[MASTER if receive else name],
@@ -236,7 +234,7 @@ def _service_messages(values, node_id: int, name: str) -> list[Message]:
                         conversion=BaseConversion.factory(choices=OrderedDict(NMT_STATE_NAMES)),
                         receivers=[MASTER], comment="NMT state")])]
     emcy = values.get((0x1014, 0))
-    if emcy is not None and not emcy & _COB_ID_INVALID:
+    if emcy is not None and not emcy & COB_ID_INVALID:
         messages.append(Message(
             frame_id=emcy & 0x7FF, name=f"{name}_EMCY", length=8, senders=[name],
             comment=f"node {node_id} ({name}) emergency (CiA 301 EMCY)",
