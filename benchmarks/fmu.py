@@ -31,7 +31,8 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirna
 from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave  # noqa: E402
 from qomni.fmu.export import export_plant_fmu  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
-from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.conventions import P1_NAMES  # noqa: E402
+from qomni.ident.result import IdentificationResult  # noqa: E402
 
 H = 0.002
 TORQUE = 1.5

@@ -34,7 +34,7 @@ from scipy import ndimage
 from qomni.ident import filtering, kinematics, odometry
 from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
 from qomni.datasheet import DataSheet
-from qomni.ident.estimation import IdentificationResult
+from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, StepSignals,
                                         generalized_signals, model_alpha, step_blocks)
 from qomni.ident.recording import Signals

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from qomni.ident.estimation import P1_NAMES, IdentificationResult
+from qomni.conventions import P1_NAMES
+from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import load_identification, load_run
 

@@ -26,7 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from qomni.ident.estimation import P1_NAMES, IdentificationResult
+from qomni.conventions import P1_NAMES
+from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
 from .hypotheses.base import Hypothesis, Magnitude, plausible

@@ -25,7 +25,7 @@ def augmented_identification(d: Diagnosis) -> dict | None:
     resistance as Δd_cw = c_rr·m_ch·g·r/4). The others are listed under ``not_representable``."""
     if d.model is None or d.final_fit is None:
         return None
-    from qomni.ident.estimation import P1_NAMES
+    from qomni.conventions import P1_NAMES
     from .diagnose import fold
 
     r = d.channels[0].context.sheet.geometry.r if d.channels else 0.1

@@ -18,7 +18,7 @@ from .spec import ModelSpec
 
 if TYPE_CHECKING:  # pragma: no cover
     from qomni.datasheet import DataSheet
-    from qomni.ident.estimation import IdentificationResult
+    from qomni.ident.result import IdentificationResult
 
 #: The exportable models by the CLI's ``--kind``.
 MODELS: dict[str, ModelSpec] = {spec.kind: spec for spec in (FEEDFORWARD, PLANT)}
@@ -31,7 +31,7 @@ def _identification_values(identification) -> tuple[dict[str, float], dict[str, 
     try:
         values = identification.as_dict()
     except AttributeError as exc:
-        raise TypeError("identification must be an ident.estimation.IdentificationResult or the path of "
+        raise TypeError("identification must be a qomni.ident.result.IdentificationResult or the path of "
                         f"identification.json, got {type(identification).__name__}") from exc
     return values, dict(getattr(identification, "std", {}) or {})
 
@@ -49,7 +49,7 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
 
     Args:
         spec: the model (:data:`MODELS`).
-        identification: :class:`qomni.ident.estimation.IdentificationResult`, or the path of
+        identification: :class:`qomni.ident.result.IdentificationResult`, or the path of
             ``identification.json`` (or of the run directory holding it, see
             :func:`qomni.ident.rundir.load_identification`). Its 11 parameters (B_w included) become the
             start values of the tunable parameters.

@@ -11,7 +11,8 @@ from pathlib import Path
 
 from . import filtering
 from .campaign import VALIDATION_STEP
-from .estimation import IdentificationResult, estimate
+from .result import IdentificationResult
+from .estimation import estimate
 from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
                              identification_blocks, validation_blocks)
 from .rundir import IDENTIFICATION_JSON, VALIDATION_JSON, b_w_source, load_identification, load_run

@@ -10,7 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .estimation import IdentificationResult, RegressorBlock  # noqa: E402
+from .result import IdentificationResult  # noqa: E402
+from .regressor import RegressorBlock  # noqa: E402
 from .validation import generalized_torques  # noqa: E402
 
 UNITS = {"alpha_l": "N m", "alpha_r": "N m", "alpha_v": "N m", "x_ch": "N", "y_ch": "N",

@@ -22,7 +22,7 @@ from qomni.datasheet import DataSheet
 
 from . import dynamics, filtering, kinematics, odometry
 from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
-from .estimation import RegressorBlock
+from .regressor import RegressorBlock
 from .recording import Signals
 from .rundir import step_signals
 

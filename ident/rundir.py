@@ -10,7 +10,7 @@ from pathlib import Path
 
 from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
 
-from .estimation import IdentificationResult
+from .result import IdentificationResult
 from .recording import Signals, read_signals
 
 METADATA = "metadata.json"

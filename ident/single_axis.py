@@ -9,23 +9,26 @@ fit takes B_w.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from . import filtering
+from qomni.conventions import EPSILON, PARAMETER_UNITS, WHEELS
+from qomni.datasheet import DataSheet
 from qomni.vehicle_interface import VehicleInterface
 
+from . import filtering
 from .campaign import CampaignAborted
-from .rundir import METADATA, SIGNALS
 from .control_design import design_pd
-from qomni.datasheet import DataSheet
-from .estimation import SingleAxisResult, estimate_single_axis
 from .fourier import design_fourier_trajectory
-from .rundir import SINGLE_AXIS_JSON
-from .regressor_rows import applied_torque_at_samples, correlation_lag
+from .least_squares import RANK_TOL, lstsq, newey_west_cov, rms
 from .recording import SignalWriter, read_signals
+from .regressor import DEFAULT_VELOCITY_THRESHOLD
+from .regressor_rows import applied_torque_at_samples, correlation_lag
+from .rundir import METADATA, SIGNALS, SINGLE_AXIS_JSON
 
 SINGLE_AXIS_DIR = "single_axis"
 STEP = "single_axis"
@@ -101,3 +104,150 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet) -> SingleAxisRes
                                   correlation_lag=correlation_lag(d.cycle_time))
     (run_dir / SINGLE_AXIS_JSON).write_text(json.dumps(result.to_json_dict(), indent=2))
     return result
+
+
+# --- estimation (lifted wheels) ----------------------------------------------------------------------
+SINGLE_AXIS_NAMES: tuple[str, ...] = ("B_w", "d_vw", "d_cw")
+
+
+WHEEL_NAMES: tuple[str, ...] = WHEELS
+
+
+@dataclass
+class SingleAxisResult:
+    """Result of :func:`estimate_single_axis`.
+
+    ``values[wheel][name]``, ``std[wheel][name]`` for name in (B_w, d_vw, d_cw) (kg m², N m s/rad,
+    N m, wheel side); ``pooled``/``pooled_std``: one fit over all wheels stacked (the paper assumes
+    equal wheels); ``rows_used`` and ``residual_rms`` (N m) per wheel.
+    """
+
+    values: dict[str, dict[str, float]]
+    std: dict[str, dict[str, float]]
+    pooled: dict[str, float]
+    pooled_std: dict[str, float]
+    rows_used: dict[str, int]
+    residual_rms: dict[str, float]
+    epsilon: float = EPSILON
+
+    @property
+    def B_w(self) -> float:
+        """Pooled B_w estimate (kg m²), to use as p₂ in :func:`estimate`."""
+        return self.pooled["B_w"]
+
+    def to_json_dict(self) -> dict:
+        def block(v, s):
+            return {n: {"value": v[n], "std": s[n], "unit": PARAMETER_UNITS[n]} for n in SINGLE_AXIS_NAMES}
+
+        return {
+            "wheels": {w: block(self.values[w], self.std[w]) for w in self.values},
+            "pooled": block(self.pooled, self.pooled_std),
+            "rows_used": dict(self.rows_used),
+            "residual_rms": dict(self.residual_rms),
+            "epsilon": self.epsilon,
+        }
+
+    @classmethod
+    def from_json_dict(cls, d: Mapping) -> "SingleAxisResult":
+        def split(b):
+            return ({n: float(b[n]["value"]) for n in SINGLE_AXIS_NAMES},
+                    {n: float(b[n]["std"]) for n in SINGLE_AXIS_NAMES})
+
+        vals, stds = {}, {}
+        for w, b in d["wheels"].items():
+            vals[w], stds[w] = split(b)
+        pv, ps = split(d["pooled"])
+        return cls(vals, stds, pv, ps, {k: int(v) for k, v in d["rows_used"].items()},
+                   {k: float(v) for k, v in d["residual_rms"].items()}, float(d.get("epsilon", EPSILON)))
+
+
+def estimate_single_axis(
+    beta_dot: ArrayLike,
+    beta_ddot: ArrayLike,
+    wheel_torque: ArrayLike,
+    *,
+    epsilon: float = EPSILON,
+    velocity_threshold: float = DEFAULT_VELOCITY_THRESHOLD,
+    wheels: Sequence[str] | None = None,
+    rank_tol: float = RANK_TOL,
+    correlation_lag: int = 0,
+) -> SingleAxisResult:
+    """Single-axis fit without ground contact: B_w β̈ + d_vw β̇ + d_cw tanh(β̇/ε) = i_G M_mot.
+
+    Parameters
+    ----------
+    beta_dot, beta_ddot : array_like, shape (N,) or (N, n_w)
+        Wheel speed (rad/s) and acceleration (rad/s²), one column per wheel.
+    wheel_torque : array_like, same shape
+        Torque on the wheel side of the gear, i_G · motor_torque (N m).
+    epsilon : float
+        tanh smoothing ε (rad/s).
+    velocity_threshold : float
+        Rows with |β̇| below it are removed (rad/s).
+    wheels : sequence of str, optional
+        Wheel names, default ``fl, rl, fr, rr`` (or ``w0, w1, …`` if n_w ≠ 4).
+    correlation_lag : int
+        Newey–West lag for the covariance of filtered rows, as in :func:`estimate`.
+
+    Returns
+    -------
+    SingleAxisResult
+
+    Raises
+    ------
+    ValueError
+        Shape mismatch, NaN/inf, or no rows left after the threshold.
+    IdentifiabilityError
+        If a wheel's regressor [β̈, β̇, tanh(β̇/ε)] is rank deficient.
+    """
+    bd = np.asarray(beta_dot, dtype=float)
+    bdd = np.asarray(beta_ddot, dtype=float)
+    tq = np.asarray(wheel_torque, dtype=float)
+    if bd.ndim == 1:
+        bd, bdd, tq = bd[:, None], bdd[:, None] if bdd.ndim == 1 else bdd, tq[:, None] if tq.ndim == 1 else tq
+    if not (bd.shape == bdd.shape == tq.shape) or bd.ndim != 2:
+        raise ValueError(f"shapes differ: beta_dot {bd.shape}, beta_ddot {bdd.shape}, wheel_torque {tq.shape}")
+    for name, arr in (("beta_dot", bd), ("beta_ddot", bdd), ("wheel_torque", tq)):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} contains NaN or inf")
+    n_w = bd.shape[1]
+    if wheels is None:
+        wheels = WHEEL_NAMES if n_w == 4 else tuple(f"w{i}" for i in range(n_w))
+    if len(wheels) != n_w:
+        raise ValueError(f"{len(wheels)} wheel names for {n_w} columns")
+
+    vals, stds, rows, res = {}, {}, {}, {}
+    all_theta, all_y = [], []
+    for j, w in enumerate(wheels):
+        keep = np.abs(bd[:, j]) >= velocity_threshold
+        rows[w] = int(keep.sum())
+        if not keep.any():
+            raise ValueError(f"wheel {w}: no rows left after the velocity threshold {velocity_threshold}")
+        theta = np.column_stack([bdd[keep, j], bd[keep, j], np.tanh(bd[keep, j] / epsilon)])
+        y = tq[keep, j]
+        fit = lstsq(theta, y, SINGLE_AXIS_NAMES, rank_tol)
+        if correlation_lag > 0:
+            fit.cov = newey_west_cov(theta, fit.residual, np.zeros(len(y), dtype=object),
+                                      np.nonzero(keep)[0], correlation_lag)
+        vals[w] = dict(zip(SINGLE_AXIS_NAMES, fit.p.tolist()))
+        stds[w] = dict(zip(SINGLE_AXIS_NAMES, np.sqrt(np.diag(fit.cov)).tolist()))
+        res[w] = rms(fit.residual)
+        all_theta.append(theta)
+        all_y.append(y)
+    pooled = lstsq(np.vstack(all_theta), np.concatenate(all_y), SINGLE_AXIS_NAMES, rank_tol)
+    if correlation_lag > 0:
+        labels = np.concatenate([np.full(len(y), w, dtype=object) for w, y in zip(wheels, all_y)])
+        index = np.concatenate([np.nonzero(np.abs(bd[:, j]) >= velocity_threshold)[0]
+                                for j in range(n_w)])
+        pooled.cov = newey_west_cov(np.vstack(all_theta), pooled.residual, labels, index,
+                                     correlation_lag)
+    return SingleAxisResult(
+        values=vals,
+        std=stds,
+        pooled=dict(zip(SINGLE_AXIS_NAMES, pooled.p.tolist())),
+        pooled_std=dict(zip(SINGLE_AXIS_NAMES, np.sqrt(np.diag(pooled.cov)).tolist())),
+        rows_used=rows,
+        residual_rms=res,
+        epsilon=epsilon,
+    )
+

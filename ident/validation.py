@@ -13,7 +13,7 @@ i.e. NRMSE is normalised by the RMS of the *measured* generalized torque, not by
 This is the stricter of the two usual choices (range ≈ 2–3 × RMS for these signals) and does not
 depend on a single peak. Acceptance target of the project: chassis channel (``…/x_ch``) ≤ 10 %.
 
-Unlike :func:`ident.estimation.estimate`, no stiction rows are removed by default (as in the paper's
+Unlike :func:`qomni.ident.estimation.estimate`, no stiction rows are removed by default (as in the paper's
 Fig. 6); pass ``velocity_threshold`` to compare only moving rows.
 """
 
@@ -25,15 +25,9 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .estimation import (
-    P1_NAMES,
-    P2_NAMES,
-    PARAMETER_NAMES,
-    IdentificationResult,
-    RegressorBlock,
-    row_mask,
-    stack_blocks,
-)
+from qomni.conventions import P1_NAMES, P2_NAMES, PARAMETER_NAMES
+from .result import IdentificationResult
+from .regressor import RegressorBlock, row_mask, stack_blocks
 
 __all__ = [
     "NRMSE_DEFINITION",
@@ -195,7 +189,7 @@ def compare_generalized_torques(
     parameters : IdentificationResult, mapping or array (11,)/(10,)
         Parameters to validate; ``B_w`` overrides/provides p₂ (kg m²).
     velocity_threshold : float, mapping or None
-        If given, rows below it are left out as in :func:`ident.estimation.row_mask`.
+        If given, rows below it are left out as in :func:`qomni.ident.regressor.row_mask`.
 
     Returns
     -------

@@ -12,17 +12,12 @@ import numpy as np
 import pytest
 
 from qomni.ident import excitation as ex
-from qomni.ident.estimation import (
-    P1_NAMES,
-    PARAMETER_NAMES,
-    IdentifiabilityError,
-    IdentificationResult,
-    RegressorBlock,
-    SingleAxisResult,
-    estimate,
-    estimate_single_axis,
-    row_mask,
-)
+from qomni.conventions import P1_NAMES, PARAMETER_NAMES
+from qomni.ident.least_squares import IdentifiabilityError
+from qomni.ident.result import IdentificationResult
+from qomni.ident.regressor import RegressorBlock, row_mask
+from qomni.ident.single_axis import SingleAxisResult, estimate_single_axis
+from qomni.ident.estimation import estimate
 from qomni.ident.validation import compare_generalized_torques, generalized_torques
 
 P_TRUE = np.array(

@@ -22,7 +22,8 @@ from qomni.fmu.export import export_feedforward_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import feedforward  # noqa: E402
-from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.conventions import P1_NAMES  # noqa: E402
+from qomni.ident.result import IdentificationResult  # noqa: E402
 from qomni.ident.symbolic import COORDINATE_NAMES, PARAMETER_NAMES, WHEELS  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")

@@ -21,7 +21,8 @@ from qomni.fmu.export import export_plant_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import forward_dynamics  # noqa: E402
-from qomni.ident.estimation import P1_NAMES, IdentificationResult  # noqa: E402
+from qomni.conventions import P1_NAMES  # noqa: E402
+from qomni.ident.result import IdentificationResult  # noqa: E402
 from test_fmu_codegen import random_states  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")

@@ -21,7 +21,7 @@ def fail(message: str) -> None:
 
 def guarded(fn):
     """``fn()``, or :func:`fail` with the message of a run-directory, recording or identifiability error."""
-    from qomni.ident.estimation import IdentifiabilityError
+    from qomni.ident.least_squares import IdentifiabilityError
     from qomni.ident.rundir import RunDirectoryError
     from qomni.ident.recording import RecordingError
 

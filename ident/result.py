@@ -1,0 +1,137 @@
+"""The identification result (:class:`IdentificationResult`): identified p₁ with standard deviations, the
+fixed p₂, the fit's statistics, and its JSON form (``identification.json``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from qomni.conventions import P1_NAMES, PARAMETER_NAMES, PARAMETER_UNITS
+
+from .regressor import DEFAULT_VELOCITY_THRESHOLD
+
+@dataclass
+class IdentificationResult:
+    """Result of :func:`estimate`.
+
+    Attributes
+    ----------
+    values, std : dict[str, float]
+        p₁ estimates and standard deviations (SI, see ``PARAMETER_UNITS``) of the reported fit
+        (channel-weighted if ``method == "channel_weighted_ls"``).
+    B_w : float
+        Fixed p₂ (kg m²).
+    condition_number : float
+        cond(Θ̂₁,wᵀΘ̂₁,w) of the column-weighted stack (25), paper section 7.
+    condition_number_channel_weighted : float or None
+        Same for the channel-weighted stack (column-renormalised), None if not weighted.
+    rows_used, rows_total : dict[str, int]
+        Rows per channel after / before the stiction threshold.
+    residual_rms : dict[str, float]
+        RMS of y − Θ̂₁p₁ per channel over the rows used (channel units, N m or N).
+    channel_sigma : dict[str, float]
+        σ_c used as channel weights (RMS of first-pass residuals per channel).
+    method : str
+        ``"ls"`` (paper) or ``"channel_weighted_ls"``.
+    velocity_threshold : float or dict
+    covariance : ndarray, shape (10, 10)
+        Covariance of p₁ (order ``P1_NAMES``) of the reported fit.
+    values_ls, std_ls : dict[str, float]
+        First-pass (paper's unweighted-row) estimates and stds.
+    """
+
+    values: dict[str, float]
+    std: dict[str, float]
+    B_w: float
+    condition_number: float
+    rows_used: dict[str, int]
+    rows_total: dict[str, int]
+    residual_rms: dict[str, float]
+    channel_sigma: dict[str, float] = field(default_factory=dict)
+    method: str = "channel_weighted_ls"
+    condition_number_channel_weighted: float | None = None
+    velocity_threshold: float | dict = DEFAULT_VELOCITY_THRESHOLD
+    covariance: np.ndarray | None = None
+    values_ls: dict[str, float] = field(default_factory=dict)
+    std_ls: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def p1(self) -> np.ndarray:
+        """p₁, shape (10,), order ``P1_NAMES``."""
+        return np.array([self.values[n] for n in P1_NAMES])
+
+    @property
+    def p(self) -> np.ndarray:
+        """Full p of (18), shape (11,), with the fixed B_w last."""
+        return np.append(self.p1, self.B_w)
+
+    @property
+    def std_vector(self) -> np.ndarray:
+        """σ_p₁, shape (10,)."""
+        return np.array([self.std[n] for n in P1_NAMES])
+
+    def as_dict(self) -> dict[str, float]:
+        """{name: value} for all 11 parameters."""
+        return dict(zip(PARAMETER_NAMES, self.p.tolist()))
+
+    def table(self) -> str:
+        """Plain-text table like the paper's Table 2."""
+        lines = [f"{'Name':<6} {'Value':>12} {'Std':>10}  Unit"]
+        for n in P1_NAMES:
+            lines.append(f"{n:<6} {self.values[n]:>12.4f} {self.std[n]:>10.4f}  {PARAMETER_UNITS[n]}")
+        lines.append(f"{'B_w':<6} {self.B_w:>12.4f} {'(fixed)':>10}  {PARAMETER_UNITS['B_w']}")
+        lines.append(f"cond(Theta_1w^T Theta_1w) = {self.condition_number:.2f}")
+        return "\n".join(lines)
+
+    def to_json_dict(self) -> dict:
+        params: dict = {
+            n: {"value": self.values[n], "std": self.std[n], "unit": PARAMETER_UNITS[n]} for n in P1_NAMES
+        }
+        params["B_w"] = {"value": self.B_w, "unit": PARAMETER_UNITS["B_w"], "fixed": True}
+        d = {
+            "parameters": params,
+            "condition_number": self.condition_number,
+            "condition_number_definition": "cond(Theta_1w^T Theta_1w), column-norm weighted (25)",
+            "condition_number_channel_weighted": self.condition_number_channel_weighted,
+            "method": self.method,
+            "velocity_threshold": self.velocity_threshold,
+            "rows_used": dict(self.rows_used),
+            "rows_total": dict(self.rows_total),
+            "residual_rms": dict(self.residual_rms),
+            "channel_sigma": dict(self.channel_sigma),
+            "ls_first_pass": {
+                n: {"value": self.values_ls.get(n), "std": self.std_ls.get(n)} for n in self.values_ls
+            },
+        }
+        if self.covariance is not None:
+            d["covariance"] = {"names": list(P1_NAMES), "matrix": np.asarray(self.covariance).tolist()}
+        return d
+
+    @classmethod
+    def from_json_dict(cls, d: Mapping) -> "IdentificationResult":
+        """Inverse of :meth:`to_json_dict`. Raises KeyError if a parameter is missing."""
+        params = d["parameters"]
+        cov = d.get("covariance")
+        if cov is not None:
+            if list(cov["names"]) != list(P1_NAMES):
+                raise ValueError(f"covariance names {cov['names']} differ from {P1_NAMES}")
+            cov = np.asarray(cov["matrix"], dtype=float)
+        first = d.get("ls_first_pass", {})
+        return cls(
+            values={n: float(params[n]["value"]) for n in P1_NAMES},
+            std={n: float(params[n]["std"]) for n in P1_NAMES},
+            B_w=float(params["B_w"]["value"]),
+            condition_number=float(d["condition_number"]),
+            rows_used={k: int(v) for k, v in d.get("rows_used", {}).items()},
+            rows_total={k: int(v) for k, v in d.get("rows_total", {}).items()},
+            residual_rms={k: float(v) for k, v in d.get("residual_rms", {}).items()},
+            channel_sigma={k: float(v) for k, v in d.get("channel_sigma", {}).items()},
+            method=str(d.get("method", "ls")),
+            condition_number_channel_weighted=d.get("condition_number_channel_weighted"),
+            velocity_threshold=d.get("velocity_threshold", DEFAULT_VELOCITY_THRESHOLD),
+            covariance=cov,
+            values_ls={k: float(v["value"]) for k, v in first.items()},
+            std_ls={k: float(v["std"]) for k, v in first.items()},
+        )
+
