@@ -30,11 +30,13 @@ from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import load_identification, load_run
 
+from . import evaluation
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
 from .hypotheses import LIBRARY, Hypothesis, generic, plausible
 from .hypotheses.base import RuleRows
+from .problem import Fit, Problem, make_problem
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -55,7 +57,7 @@ VERDICT_UNEXPLAINED = "unexplained structure remains"
 TRACTION_VERDICT = 0.5
 
 
-def combine(fits: list[fitting.Fit], extra: Hypothesis | None = None) -> Hypothesis:
+def combine(fits: list[Fit], extra: Hypothesis | None = None) -> Hypothesis:
     """One hypothesis made of accepted effects (fixed non-linear parameters) and optionally another."""
     parts = [(f.hypothesis, f.nonlinear) for f in fits]
 
@@ -104,8 +106,8 @@ class Diagnosis:
     data_metadata: Path | None = field(repr=False, default=None)
     channels: list[ChannelData] = field(repr=False, default_factory=list)
     problems: tuple = field(repr=False, default=())
-    base_fit: fitting.Fit | None = field(repr=False, default=None)
-    final_fit: fitting.Fit | None = field(repr=False, default=None)
+    base_fit: Fit | None = field(repr=False, default=None)
+    final_fit: Fit | None = field(repr=False, default=None)
     #: channel → held-out RMS of the base fit in the channel's unit
     holdout_rms: dict = field(default_factory=dict)
     #: channel → held-out RMS of the model as identified (base parameters unchanged), same unit
@@ -127,13 +129,13 @@ def _own_floor(ref_problem) -> dict:
             for ch, rows in zip(ref_problem.channels, ref_problem.fit_rows) if rows.any()}
 
 
-def _confirms_further(ev: fitting.Evaluation, floor: dict | None) -> bool:
+def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
     """Whether held-out data confirm a further effect: its window-bootstrap interval is above 0, it adds
     no residual overall, and it removes MIN_SHRINK_MORE of its channel's residual or, where the model's
     own-run residual ``floor`` (channel → RMS) is known, FLOOR_MULTIPLE_MORE times that floor."""
     if ev.shrink_affected_ci[0] <= 0 or ev.removed <= 0:
         return False
-    if ev.confirms(fitting.MIN_SHRINK_MORE):
+    if ev.confirms(evaluation.MIN_SHRINK_MORE):
         return True
     own = (floor or {}).get(ev.affected, 0.0)
     return own > 0 and _removed_rms(ev, ev.affected) >= FLOOR_MULTIPLE_MORE * own
@@ -173,7 +175,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     return best
 
 
-def _removed_rms(evaluation: fitting.Evaluation, channel: str) -> float:
+def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
     """Held-out RMS removed from one channel (its unit), 0 if it was not evaluated."""
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
 
@@ -202,20 +204,20 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if holdout_dir is not None:
         h_signals, h_sheet, _ = load_run(holdout_dir)
         hold = channels(h_signals, h_sheet, model)
-    fp, hp = fitting.make_problem(chans, lag, hold)
+    fp, hp = make_problem(chans, lag, hold)
     cache: dict = {}
     levels: dict = {}
     ref_problem = None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
         r_signals, r_sheet, _ = load_run(reference_dir)
         ref = channels(r_signals, r_sheet, model)
-        ref_problem, _ = fitting.make_problem(ref, lag, ref)
+        ref_problem, _ = make_problem(ref, lag, ref)
         levels = fitting.reference_levels(ref_problem, model, LIBRARY, lag, cache)
     base = fitting.solve(fp, model, None, None, lag, cache)
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
                               for h in LIBRARY) if c is not None]
-    all_rows = fp if hold is not None else fitting.make_problem(chans, lag, chans)[0]
+    all_rows = fp if hold is not None else make_problem(chans, lag, chans)[0]
     rows = RuleRows(all_rows, ref_problem, model, lag, cache)
     for resolve in dict.fromkeys(h.resolve for h in LIBRARY if h.resolve is not None):
         resolve(candidates, rows)
@@ -233,7 +235,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             cand, joint_fit = more
             accepted.append(cand)
             q = len(cand.hypothesis.parameters)
-            accepted_fits.append(fitting.Fit(cand.hypothesis, joint_fit.nonlinear, joint_fit.theta[-q:],
+            accepted_fits.append(Fit(cand.hypothesis, joint_fit.nonlinear, joint_fit.theta[-q:],
                                              joint_fit.theta_cov[-q:, -q:], joint_fit.delta_p,
                                              joint_fit.offsets, joint_fit.rss, joint_fit.n_eff,
                                              joint_fit.n_params))
@@ -271,12 +273,12 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
-                     chans, (fp, hp), base, final, fitting.holdout_rms(hp, base, cache),
-                     fitting.holdout_rms(hp, fitting.on_model(None, None, np.zeros(0), len(base.delta_p)),
+                     chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
+                     evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
                                          cache))
 
 
-def fold(model: IdentificationResult, final: fitting.Fit, accepted: list, r: float):
+def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):
     """The model's p (11,) with the final fit's δp and the accepted effects that the paper's parameters can
     carry folded in (``Hypothesis.folds_into``), and the accepted effects that stay outside them."""
     p = model.p.copy()
@@ -293,7 +295,7 @@ def fold(model: IdentificationResult, final: fitting.Fit, accepted: list, r: flo
     return p, rest
 
 
-def _effect_term(problem: fitting.Problem, i: int, effects: list) -> np.ndarray | None:
+def _effect_term(problem: Problem, i: int, effects: list) -> np.ndarray | None:
     """Σ Φ_e θ_e of the given accepted effects in channel i (all rows), or None."""
     ch = problem.channels[i]
     total = None
@@ -306,8 +308,8 @@ def _effect_term(problem: fitting.Problem, i: int, effects: list) -> np.ndarray 
     return total
 
 
-def _simulation(problem: fitting.Problem, model: IdentificationResult, base: fitting.Fit,
-                final: fitting.Fit, accepted: list, r: float) -> dict:
+def _simulation(problem: Problem, model: IdentificationResult, base: Fit,
+                final: Fit, accepted: list, r: float) -> dict:
     """Forward-simulation error per torque channel, base fit vs. with the accepted effects. The base
     parameters of each fit (p + δp) enter the simulated dynamics; the effects' terms are taken from
     the measured signals (teacher forcing, :mod:`diagnosis.simulate`) unless the paper's parameters can

@@ -31,111 +31,19 @@ from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
 from .hypotheses.base import Hypothesis, Magnitude, plausible
+from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate
+from .problem import Fit, Problem, cached_columns, channel_lag
 
-#: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
-WINDOW = 1.0
 #: Significance level of the F test (first effect; further effects in forward selection: ALPHA_MORE).
 #: The F test with n/L effective rows is conservative; the held-out shrinkage is the second gate.
 ALPHA = 1e-2
 ALPHA_MORE = 1e-8
-#: Smallest held-out shrinkage in the affected channel that counts as removing residual.
-MIN_SHRINK = 0.10
-MIN_SHRINK_MORE = 0.20
 #: Prior on the base parameters: σ = PRIOR_STD_FACTOR·σ_model. On ideal runs of other seeds the base fit
 #: moves them by at most 1.1 of that. A wider prior lets a base parameter absorb an effect collinear with
 #: it where the campaign shows it (heavy steering units: C_ch in the rotation).
 PRIOR_STD_FACTOR = 3.0
 #: Effect columns explained to more than this R² by the base columns are not separable from them.
 COLLINEAR_R2 = 0.98
-BOOTSTRAP = 400
-
-
-@dataclass
-class Problem:
-    """The stacked channels of one data set, with fit/held-out row selection and weights."""
-
-    channels: list[ChannelData]
-    fit_rows: list[np.ndarray]       # per channel, bool (n_c,)
-    holdout_rows: list[np.ndarray]   # per channel, bool (n_c,) (may refer to other channels)
-    weights: np.ndarray              # per channel, 1/(σ_c √L)
-    window_id: list[np.ndarray]      # per channel, int window index of each row
-
-
-def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
-    return np.floor(np.asarray(time) / window).astype(int)
-
-
-#: Correlation length of kinematic and rolling residuals, s: they are positions (integrated rates), so their noise
-#: wanders far longer than the filter's L; they count one independent row per KINEMATIC_CORRELATION.
-KINEMATIC_CORRELATION = 0.25
-
-
-def channel_lag(ch: ChannelData, lag: int) -> int:
-    """Rows over which the channel's residual stays correlated."""
-    if ch.kind != "torque":
-        return max(lag, int(round(KINEMATIC_CORRELATION / ch.context.st.cycle_time)))
-    return lag
-
-
-def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
-                 window: float = WINDOW) -> tuple[Problem, Problem]:
-    """The fitting problem and the held-out problem.
-
-    Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
-    row of ``channels`` is fitted and ``holdout`` is evaluated.
-    """
-    weights = []
-    fit_rows, hold_rows, wins = [], [], []
-    for ch in channels:
-        w = window_index(ch.time, window)
-        wins.append(w)
-        if holdout is None:
-            fit_rows.append(ch.fitted & (w % 2 == 0))
-            hold_rows.append(ch.fitted & (w % 2 == 1))
-        else:
-            fit_rows.append(ch.fitted.copy())
-        sel = fit_rows[-1]
-        r = ch.residual[sel]
-        if ch.nuisance.shape[1] and sel.any():   # the noise scale is what the nuisance terms leave
-            coef, *_ = np.linalg.lstsq(ch.nuisance[sel], r, rcond=None)
-            r = r - ch.nuisance[sel] @ coef
-        sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
-        weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
-    weights = np.array(weights)
-    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins)
-    if holdout is None:
-        return fit, Problem(channels, hold_rows, hold_rows, weights, wins)
-    by_name = {c.name: i for i, c in enumerate(channels)}
-    h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
-    h_rows = [c.fitted.copy() for c in holdout]
-    return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout])
-
-
-@dataclass
-class Fit:
-    """Solution of one (base or extended) problem."""
-
-    hypothesis: Hypothesis | None
-    nonlinear: object
-    theta: np.ndarray               # effect coefficients (q,)
-    theta_cov: np.ndarray           # (q, q)
-    delta_p: np.ndarray             # (10,)
-    offsets: dict                   # kinematic channel name → nuisance coefficients
-    rss: float                      # weighted, fit rows, including the prior term
-    n_eff: float
-    n_params: int
-    theta0: np.ndarray | None = None  # the reference run's level of the hypothesis, part of the base
-
-
-def cached_columns(h: Hypothesis, nonlinear, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
-    """``h.columns(ch, nonlinear)``, computed once per (hypothesis, non-linear value, channel) in
-    ``cache``."""
-    if cache is None:
-        return h.columns(ch, nonlinear)
-    key = (h.label, nonlinear, id(ch))
-    if key not in cache:
-        cache[key] = h.columns(ch, nonlinear)
-    return cache[key]
 
 
 def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
@@ -229,141 +137,6 @@ def base_prior_std(model) -> np.ndarray:
         raise ValueError(f"model: the standard deviation of {', '.join(np.asarray(P1_NAMES)[bad])} must be "
                          f"positive and finite to bound the base parameters, got {std[bad].tolist()}")
     return PRIOR_STD_FACTOR * std
-
-
-def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
-                       cache: dict | None = None) -> np.ndarray:
-    """What ``fit`` leaves of channel i's residual on ``rows``. Kinematic channels' nuisance terms
-    (constant, chassis creep) are re-fitted on those rows."""
-    ch = problem.channels[i]
-    r = ch.residual[rows].copy()
-    if ch.kind == "torque":
-        r -= ch.base[rows] @ fit.delta_p
-    if fit.hypothesis is not None and len(fit.theta):
-        cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
-        if cols is not None:
-            r -= cols[rows] @ fit.theta
-    if ch.kind != "torque" and len(r):
-        # The constant of integration and the chassis' creep are no property of the vehicle's effects:
-        # projected out on the evaluated rows.
-        N = ch.nuisance[rows]
-        coef, *_ = np.linalg.lstsq(N, r, rcond=None)
-        r -= N @ coef
-    return r
-
-
-def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None) -> dict[str, float]:
-    """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit."""
-    return {ch.name: float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
-            for i, (ch, rows) in enumerate(zip(problem.channels, problem.holdout_rows)) if rows.any()}
-
-
-@dataclass
-class ChannelShrink:
-    name: str
-    rms_before: float
-    rms_after: float
-
-    @property
-    def shrink(self) -> float:
-        return 1.0 - self.rms_after / self.rms_before if self.rms_before > 0 else 0.0
-
-    @property
-    def removed_rms(self) -> float:
-        """RMS removed, in the channel's unit: √(before² − after²), 0 if nothing."""
-        return math.sqrt(max(self.rms_before**2 - self.rms_after**2, 0.0))
-
-
-@dataclass
-class Evaluation:
-    """Held-out comparison of the base fit and an extended fit."""
-
-    channels: list[ChannelShrink]
-    weighted_rss_before: float
-    weighted_rss_after: float
-    affected: str
-    shrink_affected: float
-    shrink_affected_ci: tuple[float, float]
-
-    @property
-    def removed(self) -> float:
-        """Weighted held-out residual removed (RSS units of the noise; the ranking score)."""
-        return self.weighted_rss_before - self.weighted_rss_after
-
-    def confirms(self, min_shrink: float) -> bool:
-        """Whether the held-out data confirm the effect: it removes at least ``min_shrink`` of its
-        affected channel's residual and adds none overall (weighted over every channel). An effect that
-        shrinks one channel by making others worse fits the fitted windows' noise, not the vehicle."""
-        return self.shrink_affected >= min_shrink and self.removed > 0
-
-
-def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
-             rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
-    """Held-out residual before (``base``) and after (``ext``), per channel, with a window-bootstrap 95 %
-    interval for the affected channel's shrinkage. ``affected``: that channel, when another
-    evaluation of the same effect has chosen it (default: chosen here, see below)."""
-    rng = rng or np.random.default_rng(0)
-    out = []
-    per_window = {}
-    rss_b = rss_a = 0.0
-    for i, ch in enumerate(problem.channels):
-        rows = problem.holdout_rows[i]
-        if not rows.any():
-            continue
-        before = predicted_residual(problem, i, base, rows, cache)
-        after = predicted_residual(problem, i, ext, rows, cache)
-        w = problem.weights[i]
-        rss_b += float(np.sum((w * before) ** 2))
-        rss_a += float(np.sum((w * after) ** 2))
-        out.append(ChannelShrink(ch.name, float(np.sqrt(np.mean(before**2))),
-                                 float(np.sqrt(np.mean(after**2)))))
-        wins = problem.window_id[i][rows]
-        per_window[ch.name] = (wins, before, after)
-    if not out:
-        return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
-    gain = {}
-    for i, ch in enumerate(problem.channels):
-        rows = problem.holdout_rows[i]
-        if rows.any():
-            gain[ch.name] = problem.weights[i] ** 2 * rows.sum()
-    # The affected channel: of the channels holding at least a tenth of the removed (weighted) residual,
-    # the one where the effect removes the largest fraction.
-    removed = {c.name: gain[c.name] * (c.rms_before**2 - c.rms_after**2) for c in out}
-    top = max(removed.values())
-    # (when the effect removes nothing anywhere, every channel is a candidate)
-    pool = [c for c in out if top > 0 and removed[c.name] >= 0.1 * top] or out
-    affected = next((c for c in out if c.name == affected), None) or max(pool, key=lambda c: c.shrink)
-    wins, before, after = per_window[affected.name]
-    ids = np.unique(wins)
-    sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])
-    sa = np.array([np.sum(after[wins == k] ** 2) for k in ids])
-    boot = []
-    for _ in range(BOOTSTRAP):
-        pick = rng.integers(0, len(ids), len(ids))
-        boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
-    lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
-    return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)))
-
-
-def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:
-    """The model as identified plus effect ``h`` at coefficients ``theta`` (q,), its base parameters
-    unchanged (δp = 0, ``n_base`` entries): what adding the effect to the model predicts. Only for
-    :func:`evaluate` and :func:`predicted_residual` (no RSS, no covariance)."""
-    theta = np.asarray(theta, dtype=float)
-    return Fit(h, nonlinear, theta, np.zeros((len(theta), len(theta))), np.zeros(n_base), {}, 0.0, 0.0, 0)
-
-
-def added_to_identified(problem: Problem, ext: Fit, tail: int, affected: str,
-                        cache: dict | None = None) -> Evaluation:
-    """Held-out residual of the model as identified (with the already accepted effects, all but the last
-    ``tail`` coefficients of ``ext``) before and after adding the effect at ``ext``'s fitted level, both
-    with the base parameters as identified: gap.json's ``holdout_shrink``. Evaluated in the ``affected``
-    channel of the comparison from the base fit."""
-    before = ext.theta.copy()
-    before[len(before) - tail:] = 0.0
-    n = len(ext.delta_p)
-    return evaluate(problem, on_model(ext.hypothesis, ext.nonlinear, before, n),
-                    on_model(ext.hypothesis, ext.nonlinear, ext.theta, n), cache, affected=affected)
 
 
 def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
@@ -509,14 +282,6 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
                           + (", ".join(ident_check["correlated_with"]) or "the base columns together")
                           + ": separable only through the base model's uncertainty")
     return cand
-
-
-def restrict(problem: Problem, keep) -> Problem:
-    """The same problem on the channels for which ``keep(channel)`` is true."""
-    idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
-    return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
-                   [problem.holdout_rows[i] for i in idx], problem.weights[idx],
-                   [problem.window_id[i] for i in idx])
 
 
 def level_z(problem: Problem, model: IdentificationResult, h: Hypothesis, nonlinear, lag: int,

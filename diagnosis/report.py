@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from .diagnose import Diagnosis
-from .fit import Candidate, predicted_residual
+from .evaluation import predicted_residual
+from .fit import Candidate
 
 GAP_JSON = "gap.json"
 REPORT_HTML = "report.html"

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from qomni.diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
-from qomni.diagnosis.fit import ChannelShrink
+from qomni.diagnosis.evaluation import ChannelShrink
 from qomni.datasheet import DataSheet
 from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
 
@@ -100,7 +100,7 @@ def test_each_stretch_between_limited_rows_gets_its_own_constant(free, expected)
 def _stribeck(variant, significant, p_value=1e-3, shrink=0.3, v_s=0.02, removed=50.0):
     from types import SimpleNamespace as NS
 
-    from qomni.diagnosis.fit import Evaluation
+    from qomni.diagnosis.evaluation import Evaluation
     return NS(hypothesis=NS(name="stribeck", variant=variant), significant=significant, p_value=p_value,
               physical=True, notes=[], fit=NS(nonlinear=v_s),
               evaluation=Evaluation([], 100.0, 100.0 - removed, "steer_left/alpha_l", shrink, (0.0, 0.5)))

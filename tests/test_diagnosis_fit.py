@@ -7,7 +7,9 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
+from qomni.diagnosis.evaluation import ChannelShrink, Evaluation
 from qomni.diagnosis import fit as fitting
+from qomni.diagnosis.problem import Problem, restrict
 from qomni.diagnosis.hypotheses import INCLINE, Hypothesis, plausible
 
 N_ROWS = 400
@@ -25,7 +27,7 @@ def _channel(name, rng, planted=0.0, k=3):
 
 def _problem(channels):
     rows = [np.ones(N_ROWS, bool) for _ in channels]
-    return fitting.Problem(channels, rows, [np.zeros(N_ROWS, bool) for _ in channels],
+    return Problem(channels, rows, [np.zeros(N_ROWS, bool) for _ in channels],
                            np.ones(len(channels)), [np.zeros(N_ROWS, int) for _ in channels])
 
 
@@ -55,7 +57,7 @@ def test_restrict_keeps_only_the_chosen_channels():
     rng = np.random.default_rng(7)
     steered, unsteered = _channel("steer/alpha_l", rng, 2.0, k=1), _channel("straight/x_ch", rng, 0.0, k=3)
     whole = _problem([steered, unsteered])
-    sub = fitting.restrict(whole, lambda ch: ch.context.k != 1)
+    sub = restrict(whole, lambda ch: ch.context.k != 1)
     assert [c.name for c in sub.channels] == ["straight/x_ch"] and len(sub.fit_rows) == 1
     assert fitting.level_z(whole, MODEL, LEVEL, None, 1) > 10
     assert abs(fitting.level_z(sub, MODEL, LEVEL, None, 1)) < 4
@@ -69,7 +71,7 @@ def test_level_z_needs_one_coefficient():
 
 def test_held_out_confirmation_needs_the_overall_residual_not_to_grow():
     def evaluation(before, after, shrink):
-        return fitting.Evaluation([], before, after, "steer_right/alpha_r", shrink, (0.0, 0.3))
+        return Evaluation([], before, after, "steer_right/alpha_r", shrink, (0.0, 0.3))
 
     assert evaluation(100.0, 60.0, 0.3).confirms(0.1)
     # one steering side 14 % better, the other worse: more held-out residual overall
@@ -101,9 +103,9 @@ def test_a_model_without_a_standard_deviation_is_refused_by_name():
 def _alternating_windows(channels):
     """Fit on even windows of 40 rows, hold out the odd ones (as make_problem does with 1 s windows)."""
     win = np.arange(N_ROWS) // 40
-    fit = fitting.Problem(channels, [win % 2 == 0 for _ in channels], [win % 2 == 1 for _ in channels],
+    fit = Problem(channels, [win % 2 == 0 for _ in channels], [win % 2 == 1 for _ in channels],
                           np.ones(len(channels)), [win for _ in channels])
-    hold = fitting.Problem(channels, [win % 2 == 1 for _ in channels], [win % 2 == 1 for _ in channels],
+    hold = Problem(channels, [win % 2 == 1 for _ in channels], [win % 2 == 1 for _ in channels],
                            np.ones(len(channels)), [win for _ in channels])
     return fit, hold
 
@@ -238,8 +240,8 @@ def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_agains
 
     def evaluation(before, after, ci=(0.04, 0.10), removed=10.0):
         shrink = 1 - after / before
-        return fitting.Evaluation([fitting.ChannelShrink("rotation/gamma_ch", before, after)], 100.0,
-                                  100.0 - removed, "rotation/gamma_ch", shrink, ci)
+        return Evaluation([ChannelShrink("rotation/gamma_ch", before, after)], 100.0,
+                          100.0 - removed, "rotation/gamma_ch", shrink, ci)
 
     floor = {"rotation/gamma_ch": 1.3}   # N m: the model's residual on its own run
     # a 4 ms delay next to a backlash whose torque transients its hypothesis leaves: 7 %, 8.1 N m removed

@@ -6,8 +6,7 @@ import numpy as np
 from qomni.conventions import EPSILON as EPS_SIGN
 
 from ..channels import ChannelData
-from .. import fit as fitting
-from .base import RuleRows, Hypothesis, _linear_magnitude, _project, _torque_only
+from .base import Hypothesis, RuleRows, _linear_magnitude, _project, _torque_only
 
 
 #: rad/s, joint side: below this speed a joint is taken as sticking. Its friction then holds against the
@@ -81,6 +80,8 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     friction do not. The same holds when only the wheel variant passes the test of the steering steps
     and the steering variant confirms on held-out data as well: the steering variant is then reported,
     with that test's significance. When it does not confirm, the wheel variant stays."""
+    from ..evaluation import MIN_SHRINK   # the fitting machinery imports this package: import at use
+
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
     if wheels is None or steering is None or not (steering.significant or wheels.significant):
@@ -92,7 +93,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
         if not wheels.significant:
             return
         if not steering.significant:
-            if not (steering.physical and steering.evaluation.confirms(fitting.MIN_SHRINK)):
+            if not (steering.physical and steering.evaluation.confirms(MIN_SHRINK)):
                 return
             steering.significant = True
             steering.notes.append(f"preferred over the wheel joints, whose level in the steps without "
@@ -109,7 +110,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     steering.significant = False
     steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
                           f"(z = {z:.1f}); this one has no column there")
-    wheels.significant = wheels.physical and wheels.evaluation.confirms(fitting.MIN_SHRINK)
+    wheels.significant = wheels.physical and wheels.evaluation.confirms(MIN_SHRINK)
     wheels.notes.append(f"preferred over the steering joints: its level in the steps without steering "
                         f"motion exceeds the reference run's by z = {z:.1f}; significance from the "
                         f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
@@ -122,14 +123,17 @@ def unsteered_wheel_z(all_rows, ref_problem, model, lag: int, cache: dict):
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
     the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
+    from .. import fit as fitting           # the fitting machinery imports this package: import at use
+    from ..problem import restrict
+
     def unsteered(ch):
         return ch.context.k != 1
 
     def z(v_s):
         # the reference run's level at this v_s only (reference_levels would fit the whole grid)
-        ref = None if ref_problem is None else fitting.solve(fitting.restrict(ref_problem, unsteered), model,
+        ref = None if ref_problem is None else fitting.solve(restrict(ref_problem, unsteered), model,
                                                              STRIBECK_WHEELS, v_s, lag, cache)
-        return fitting.level_z(fitting.restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
+        return fitting.level_z(restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
                                None if ref is None else ref.theta)
 
     return z

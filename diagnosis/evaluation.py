@@ -1,0 +1,151 @@
+"""Held-out evaluation of a fit: what it leaves per channel, the shrinkage against the base fit with a
+window-bootstrap interval, and when held-out data confirm an effect (``Evaluation.confirms``)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .hypotheses.base import Hypothesis
+from .problem import Fit, Problem, cached_columns
+
+#: Smallest held-out shrinkage in the affected channel that counts as removing residual.
+MIN_SHRINK = 0.10
+MIN_SHRINK_MORE = 0.20
+BOOTSTRAP = 400
+
+
+def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
+                       cache: dict | None = None) -> np.ndarray:
+    """What ``fit`` leaves of channel i's residual on ``rows``. Kinematic channels' nuisance terms
+    (constant, chassis creep) are re-fitted on those rows."""
+    ch = problem.channels[i]
+    r = ch.residual[rows].copy()
+    if ch.kind == "torque":
+        r -= ch.base[rows] @ fit.delta_p
+    if fit.hypothesis is not None and len(fit.theta):
+        cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
+        if cols is not None:
+            r -= cols[rows] @ fit.theta
+    if ch.kind != "torque" and len(r):
+        # The constant of integration and the chassis' creep are no property of the vehicle's effects:
+        # projected out on the evaluated rows.
+        N = ch.nuisance[rows]
+        coef, *_ = np.linalg.lstsq(N, r, rcond=None)
+        r -= N @ coef
+    return r
+
+
+def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None) -> dict[str, float]:
+    """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit."""
+    return {ch.name: float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
+            for i, (ch, rows) in enumerate(zip(problem.channels, problem.holdout_rows)) if rows.any()}
+
+
+@dataclass
+class ChannelShrink:
+    name: str
+    rms_before: float
+    rms_after: float
+
+    @property
+    def shrink(self) -> float:
+        return 1.0 - self.rms_after / self.rms_before if self.rms_before > 0 else 0.0
+
+    @property
+    def removed_rms(self) -> float:
+        """RMS removed, in the channel's unit: √(before² − after²), 0 if nothing."""
+        return math.sqrt(max(self.rms_before**2 - self.rms_after**2, 0.0))
+
+
+@dataclass
+class Evaluation:
+    """Held-out comparison of the base fit and an extended fit."""
+
+    channels: list[ChannelShrink]
+    weighted_rss_before: float
+    weighted_rss_after: float
+    affected: str
+    shrink_affected: float
+    shrink_affected_ci: tuple[float, float]
+
+    @property
+    def removed(self) -> float:
+        """Weighted held-out residual removed (RSS units of the noise; the ranking score)."""
+        return self.weighted_rss_before - self.weighted_rss_after
+
+    def confirms(self, min_shrink: float) -> bool:
+        """Whether the held-out data confirm the effect: it removes at least ``min_shrink`` of its
+        affected channel's residual and adds none overall (weighted over every channel). An effect that
+        shrinks one channel by making others worse fits the fitted windows' noise, not the vehicle."""
+        return self.shrink_affected >= min_shrink and self.removed > 0
+
+
+def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
+             rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
+    """Held-out residual before (``base``) and after (``ext``), per channel, with a window-bootstrap 95 %
+    interval for the affected channel's shrinkage. ``affected``: that channel, when another
+    evaluation of the same effect has chosen it (default: chosen here, see below)."""
+    rng = rng or np.random.default_rng(0)
+    out = []
+    per_window = {}
+    rss_b = rss_a = 0.0
+    for i, ch in enumerate(problem.channels):
+        rows = problem.holdout_rows[i]
+        if not rows.any():
+            continue
+        before = predicted_residual(problem, i, base, rows, cache)
+        after = predicted_residual(problem, i, ext, rows, cache)
+        w = problem.weights[i]
+        rss_b += float(np.sum((w * before) ** 2))
+        rss_a += float(np.sum((w * after) ** 2))
+        out.append(ChannelShrink(ch.name, float(np.sqrt(np.mean(before**2))),
+                                 float(np.sqrt(np.mean(after**2)))))
+        wins = problem.window_id[i][rows]
+        per_window[ch.name] = (wins, before, after)
+    if not out:
+        return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
+    gain = {}
+    for i, ch in enumerate(problem.channels):
+        rows = problem.holdout_rows[i]
+        if rows.any():
+            gain[ch.name] = problem.weights[i] ** 2 * rows.sum()
+    # The affected channel: of the channels holding at least a tenth of the removed (weighted) residual,
+    # the one where the effect removes the largest fraction.
+    removed = {c.name: gain[c.name] * (c.rms_before**2 - c.rms_after**2) for c in out}
+    top = max(removed.values())
+    # (when the effect removes nothing anywhere, every channel is a candidate)
+    pool = [c for c in out if top > 0 and removed[c.name] >= 0.1 * top] or out
+    affected = next((c for c in out if c.name == affected), None) or max(pool, key=lambda c: c.shrink)
+    wins, before, after = per_window[affected.name]
+    ids = np.unique(wins)
+    sb = np.array([np.sum(before[wins == k] ** 2) for k in ids])
+    sa = np.array([np.sum(after[wins == k] ** 2) for k in ids])
+    boot = []
+    for _ in range(BOOTSTRAP):
+        pick = rng.integers(0, len(ids), len(ids))
+        boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
+    lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
+    return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)))
+
+
+def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:
+    """The model as identified plus effect ``h`` at coefficients ``theta`` (q,), its base parameters
+    unchanged (δp = 0, ``n_base`` entries): what adding the effect to the model predicts. Only for
+    :func:`evaluate` and :func:`predicted_residual` (no RSS, no covariance)."""
+    theta = np.asarray(theta, dtype=float)
+    return Fit(h, nonlinear, theta, np.zeros((len(theta), len(theta))), np.zeros(n_base), {}, 0.0, 0.0, 0)
+
+
+def added_to_identified(problem: Problem, ext: Fit, tail: int, affected: str,
+                        cache: dict | None = None) -> Evaluation:
+    """Held-out residual of the model as identified (with the already accepted effects, all but the last
+    ``tail`` coefficients of ``ext``) before and after adding the effect at ``ext``'s fitted level, both
+    with the base parameters as identified: gap.json's ``holdout_shrink``. Evaluated in the ``affected``
+    channel of the comparison from the base fit."""
+    before = ext.theta.copy()
+    before[len(before) - tail:] = 0.0
+    n = len(ext.delta_p)
+    return evaluate(problem, on_model(ext.hypothesis, ext.nonlinear, before, n),
+                    on_model(ext.hypothesis, ext.nonlinear, ext.theta, n), cache, affected=affected)

@@ -1,0 +1,108 @@
+"""The diagnosis' estimation problem: every channel's rows split into alternating fit and held-out windows,
+the fit's result type, and the hypothesis columns cache (see :mod:`.fit`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .channels import ChannelData
+from .hypotheses.base import Hypothesis
+
+#: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
+WINDOW = 1.0
+#: Correlation length of kinematic and rolling residuals, s: they are positions (integrated rates), so their noise
+#: wanders far longer than the filter's L; they count one independent row per KINEMATIC_CORRELATION.
+KINEMATIC_CORRELATION = 0.25
+
+
+@dataclass
+class Problem:
+    """The stacked channels of one data set, with fit/held-out row selection and weights."""
+
+    channels: list[ChannelData]
+    fit_rows: list[np.ndarray]       # per channel, bool (n_c,)
+    holdout_rows: list[np.ndarray]   # per channel, bool (n_c,) (may refer to other channels)
+    weights: np.ndarray              # per channel, 1/(σ_c √L)
+    window_id: list[np.ndarray]      # per channel, int window index of each row
+
+
+def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
+    return np.floor(np.asarray(time) / window).astype(int)
+
+
+def channel_lag(ch: ChannelData, lag: int) -> int:
+    """Rows over which the channel's residual stays correlated."""
+    if ch.kind != "torque":
+        return max(lag, int(round(KINEMATIC_CORRELATION / ch.context.st.cycle_time)))
+    return lag
+
+
+def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
+                 window: float = WINDOW) -> tuple[Problem, Problem]:
+    """The fitting problem and the held-out problem.
+
+    Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
+    row of ``channels`` is fitted and ``holdout`` is evaluated.
+    """
+    weights = []
+    fit_rows, hold_rows, wins = [], [], []
+    for ch in channels:
+        w = window_index(ch.time, window)
+        wins.append(w)
+        if holdout is None:
+            fit_rows.append(ch.fitted & (w % 2 == 0))
+            hold_rows.append(ch.fitted & (w % 2 == 1))
+        else:
+            fit_rows.append(ch.fitted.copy())
+        sel = fit_rows[-1]
+        r = ch.residual[sel]
+        if ch.nuisance.shape[1] and sel.any():   # the noise scale is what the nuisance terms leave
+            coef, *_ = np.linalg.lstsq(ch.nuisance[sel], r, rcond=None)
+            r = r - ch.nuisance[sel] @ coef
+        sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
+        weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
+    weights = np.array(weights)
+    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins)
+    if holdout is None:
+        return fit, Problem(channels, hold_rows, hold_rows, weights, wins)
+    by_name = {c.name: i for i, c in enumerate(channels)}
+    h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
+    h_rows = [c.fitted.copy() for c in holdout]
+    return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout])
+
+
+def restrict(problem: Problem, keep) -> Problem:
+    """The same problem on the channels for which ``keep(channel)`` is true."""
+    idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
+    return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
+                   [problem.holdout_rows[i] for i in idx], problem.weights[idx],
+                   [problem.window_id[i] for i in idx])
+
+
+@dataclass
+class Fit:
+    """Solution of one (base or extended) problem."""
+
+    hypothesis: Hypothesis | None
+    nonlinear: object
+    theta: np.ndarray               # effect coefficients (q,)
+    theta_cov: np.ndarray           # (q, q)
+    delta_p: np.ndarray             # (10,)
+    offsets: dict                   # kinematic channel name → nuisance coefficients
+    rss: float                      # weighted, fit rows, including the prior term
+    n_eff: float
+    n_params: int
+    theta0: np.ndarray | None = None  # the reference run's level of the hypothesis, part of the base
+
+
+def cached_columns(h: Hypothesis, nonlinear, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
+    """``h.columns(ch, nonlinear)``, computed once per (hypothesis, non-linear value, channel) in
+    ``cache``."""
+    if cache is None:
+        return h.columns(ch, nonlinear)
+    key = (h.label, nonlinear, id(ch))
+    if key not in cache:
+        cache[key] = h.columns(ch, nonlinear)
+    return cache[key]
