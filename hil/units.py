@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from qomni.vehicle_interface import Measurement
+
 INT16_MIN, INT16_MAX = -(2**15), 2**15 - 1
 _TWO_PI = 2.0 * np.pi
 
@@ -67,3 +69,22 @@ def alpha_to_counts(alpha, bits: int) -> np.ndarray:
     """Angle α [rad] → steering sensor counts ``round(α/2π·2**bits) mod 2**bits`` (int64)."""
     full = 1 << bits
     return np.rint(np.asarray(alpha, dtype=float) / _TWO_PI * full).astype(np.int64) % full
+
+
+def device_measurement(time: float, position_total, velocity, torque, counts, *, encoder_increments: int,
+                       rated_torque, steering_sensor_bits: int) -> Measurement:
+    """One SYNC's sample in SI from the device units of the TPDOs: the master's one conversion, used by
+    the client on the bus and by the decoder of logs alike.
+
+    Args:
+        time: s. position_total: (4,) int64 motor increments, unwrapped (:func:`unwrap32`).
+        velocity: (4,) increments/s (0x606C). torque: (4,) per mille of ``rated_torque`` (0x6077).
+        counts: (2,) steering sensor measuring units (0x6004 of nodes 5, 6).
+        encoder_increments: per motor revolution. rated_torque: (4,) or scalar, N m motor side (0x6076).
+        steering_sensor_bits: resolution of the steering sensors.
+    """
+    return Measurement(time=time,
+                       motor_position=increments_to_rad(position_total, encoder_increments),
+                       motor_velocity=increments_to_rad(velocity, encoder_increments),
+                       motor_torque=per_mille_to_torque(torque, rated_torque),
+                       alpha=counts_to_alpha(counts, steering_sensor_bits))

@@ -24,7 +24,6 @@ kept in :attr:`VehicleClient.emcy` and the recent ones are named in the error of
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from pathlib import Path
@@ -45,6 +44,7 @@ from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, S
 from qomni.vehicle_interface import Measurement
 from ..pdo_codec import PdoCodec, build_codec, encode_entry
 from ..tools.recorder import BusRecorder
+from ..units import device_measurement, unwrap32
 
 logger = logging.getLogger(__name__)
 
@@ -493,23 +493,12 @@ class VehicleClient:
                 if sink is not None:
                     fields[sink[0]][sink[1]] = value
         raw = np.array(fields["position"], dtype=np.int64)
-        if self._unwrap is None:
-            total = raw
-        else:
-            last_raw, last_total = self._unwrap
-            total = last_total + ((raw - last_raw + 2**31) % 2**32 - 2**31)
+        total = raw if self._unwrap is None else unwrap32(raw, *self._unwrap)
         self._unwrap = (raw, total)
-        scale = 2.0 * math.pi / self.encoder_increments
-        full = 1 << self.steering_sensor_bits
-        counts = np.array(fields["counts"], dtype=np.int64) % full
-        counts = np.where(counts > full // 2, counts - full, counts)
-        measurement = Measurement(
-            time=t,
-            motor_position=total * scale,
-            motor_velocity=np.array(fields["velocity"], dtype=float) * scale,
-            motor_torque=np.array(fields["torque"], dtype=float) * self.rated_torque * 1e-3,
-            alpha=counts * (2.0 * math.pi / full),
-        )
+        measurement = device_measurement(t, total, fields["velocity"], fields["torque"], fields["counts"],
+                                         encoder_increments=self.encoder_increments,
+                                         rated_torque=self.rated_torque,
+                                         steering_sensor_bits=self.steering_sensor_bits)
         bad = {DRIVE_NODE_IDS[i]: state_of(sw) for i, sw in enumerate(fields["status"])
                if sw is not None and sw & _SW_STATE_MASK != _SW_OPERATION_ENABLED}
         if bad:

@@ -38,7 +38,7 @@ from ..tools.dbc import enabled_pdos, reset_values
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID
 from qomni.vehicle_interface import Measurement
 from ..pdo_codec import PdoCodec, PdoMappingError, build_codec
-from ..units import counts_to_alpha, increments_to_rad, per_mille_to_torque, unwrap32
+from ..units import device_measurement, unwrap32
 
 
 
@@ -214,7 +214,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
     cycle = None          # cycles since NMT start; None before the first start
     rx: dict[int, bytes] = {}
     unwrap = None
-    scale_pos = increments_to_rad(1.0, encoder_increments)
+
     for msg in itertools.chain(reader, [None]):          # None: the end closes the last cycle
         if msg is not None:
             report.frames += 1
@@ -223,7 +223,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
         cob = sync_id if msg is None else msg.arbitration_id
         if cob == sync_id:
             if cycle is not None and rx:
-                out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, scale_pos,
+                out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, encoder_increments,
                             steering_sensor_bits)
                 if out is None:
                     report.incomplete += 1
@@ -247,7 +247,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
                 pending_cmd[drive] = codec.unpack(msg.data)[slot] * rated[drive] * 1e-3
 
 
-def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, scale_pos, bits):
+def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, increments, bits):
     if len(rx) < expected:
         return None
     fields = {"status": [0] * 4, "position": [0] * 4, "velocity": [0] * 4, "torque": [0] * 4, "counts": [0] * 2}
@@ -261,12 +261,8 @@ def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, scale_pos, bits)
                 fields[name][index if name != "counts" else index - 4] = value
     raw = np.array(fields["position"], dtype=np.int64)
     total = raw if unwrap is None else unwrap32(raw, unwrap[0], unwrap[1])
-    measurement = Measurement(
-        time=k * period,
-        motor_position=total * scale_pos,
-        motor_velocity=np.array(fields["velocity"], dtype=float) * scale_pos,
-        motor_torque=per_mille_to_torque(fields["torque"], rated),
-        alpha=counts_to_alpha(fields["counts"], bits))
+    measurement = device_measurement(k * period, total, fields["velocity"], fields["torque"], fields["counts"],
+                                     encoder_increments=increments, rated_torque=rated, steering_sensor_bits=bits)
     return DecodedCycle(measurement, cmd.copy(), tuple(fields["status"])), (raw, total)
 
 
