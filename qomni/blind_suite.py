@@ -29,28 +29,15 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from qomni.conventions import WHEELS
+from qomni.emulator.effects.effect_set import REGISTRY
 
 #: Realistic magnitudes per effect: (low, high). Each entry is one effects-file table.
-MAGNITUDES: dict[str, tuple[dict, dict]] = {
-    "payload": ({"mass": 150.0, "com_offset": [0.25, 0.15], "height": 0.3},
-                {"mass": 300.0, "com_offset": [0.25, 0.15], "height": 0.3}),
-    "incline": ({"angle": 0.01}, {"angle": 0.02}),
-    "stribeck_wheels": ({"joints": "wheels", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
-                        {"joints": "wheels", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
-    "stribeck_steering": ({"joints": "steering", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
-                          {"joints": "steering", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
-    "rolling_resistance": ({"c_rr": 0.008}, {"c_rr": 0.015}),
-    "actuator_delay": ({"delay": 0.004}, {"delay": 0.010}),
-    "torque_constant_error": ({"factor": 0.92}, {"factor": 0.88}),
-    "wheel_radius": ({"radius": 0.098}, {"radius": 0.096}),
-    "backlash": ({"gap": 0.005}, {"gap": 0.01}),
-    "steering_compliance": ({"stiffness": 2000.0}, {"stiffness": 800.0}),
-    "tire_slip": ({"cornering_stiffness": 8000.0}, {"cornering_stiffness": 4000.0}),
-    "heavy_steering_units": ({"steering_unit_mass": 20.0, "wheel_mass": 8.0},
-                             {"steering_unit_mass": 30.0, "wheel_mass": 12.0}),
-}
+#: Realistic magnitudes per suite entry: (low, high) effects-file tables, as each effect declares them
+#: (``Effect.suite`` in its module).
+MAGNITUDES: dict[str, tuple[dict, dict]] = {entry: tables for cls in REGISTRY.values()
+                                            for entry, tables in cls.suite.items()}
 #: Effects-file table name of each suite entry (two Stribeck variants share one effect).
-TABLE = {"stribeck_wheels": "stribeck", "stribeck_steering": "stribeck"}
+TABLE = {entry: cls.name for cls in REGISTRY.values() for entry in cls.suite if entry != cls.name}
 DRIVES = WHEELS
 #: Names of the magnitude indices 0 and 1 of MAGNITUDES.
 LEVELS = ("low", "high")

@@ -8,7 +8,8 @@ import pytest
 
 from qomni.diagnosis.channels import ChannelData, StepContext
 from qomni.conventions import GRAVITY
-from qomni.diagnosis.hypotheses import STEERING_COMPLIANCE, plausible
+from qomni.diagnosis.hypotheses import plausible
+from qomni.diagnosis.hypotheses.steering_compliance import STEERING_COMPLIANCE
 from qomni.diagnosis.hypotheses.steering_compliance import SCRUB_FRICTION, play
 from qomni.ident import filtering, kinematics
 from qomni.datasheet import DataSheet

@@ -22,8 +22,7 @@ from qomni.hil.master.client import state_of
 from qomni.hil.device.drive402 import PowerState
 from qomni.hil.layout import DRIVE_EDS
 from qomni.hil.device.server import VehicleServer
-from test_hil_protocol import (FakePlant, Master, channel, enable_by_sdo, master, plant, rpdo1,  # noqa: F401
-                               server, wait_for)
+from doubles import FakePlant, Master, enable_by_sdo, rpdo1, wait_for
 
 S = PowerState
 

@@ -10,7 +10,8 @@ import pytest
 from qomni.diagnosis.evaluation import ChannelShrink, Evaluation
 from qomni.diagnosis import fit as fitting
 from qomni.diagnosis.problem import Problem, restrict
-from qomni.diagnosis.hypotheses import INCLINE, Hypothesis, plausible
+from qomni.diagnosis.hypotheses import Hypothesis, plausible
+from qomni.diagnosis.hypotheses.incline import INCLINE
 
 N_ROWS = 400
 

@@ -9,7 +9,7 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from qomni.diagnosis.hypotheses import WHEEL_RADIUS
+from qomni.diagnosis.hypotheses.wheel_radius import WHEEL_RADIUS
 from qomni.diagnosis.hypotheses.base import _input_torque, _project
 from qomni.emulator.description import VehicleDescription
 from qomni.ident import dynamics, kinematics, odometry

@@ -13,7 +13,7 @@ from qomni.hil.master.client import CommunicationError, VehicleClient
 from qomni.hil.device.drive402 import PowerState
 from qomni.hil.device.faults import FaultInjector, FaultPlan, FaultPlanError, FrameLoss
 from qomni.hil.device.server import VehicleServer
-from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant, wait_for
+from doubles import BITS, INCREMENTS, T_S, FakePlant, wait_for
 
 S = PowerState
 

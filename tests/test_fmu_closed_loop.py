@@ -12,7 +12,7 @@ from qomni.fmu.export import export_plant_fmu  # noqa: E402
 from qomni.vehicle_interface import VehicleInterface  # noqa: E402
 from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP, CampaignSettings  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
-from test_fmu_plant import identification  # noqa: E402
+from doubles import identification  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

@@ -13,6 +13,8 @@ from qomni.ident import kinematics
 from qomni.datasheet import DataSheet, Geometry
 from qomni.ident.dynamics import feedforward
 
+from doubles import random_states
+
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 RTOL = 1e-9
@@ -58,24 +60,6 @@ def c_feedforward(lib, k, alpha, sd, sdd, p, geometry, i_G, eps=EPS, alpha_v=Non
                                    _arr(sd2), _arr(sdd2), _arr(p), _arr(g), i_G, eps, u.ctypes.data_as(_D),
                                    ctypes.byref(err))
     return status, u, (err.value or b"").decode()
-
-
-def random_states(k, n, geometry, rng):
-    """Random desired states of mode k: alpha (n, 2), alpha_v (n,), sd, sdd (n, n_k)."""
-    nk = codegen.N_GENERALIZED[k]
-    alpha_v = np.zeros(n)
-    if k == 1:
-        alpha = rng.uniform(-1.5, 1.5, (n, 2))
-    elif k == 2:
-        alpha_v = rng.uniform(-0.95, 0.95, n) * kinematics.alpha_v_max(geometry)
-        alpha = kinematics.f_icr(alpha_v, geometry)
-    else:
-        alpha = np.tile(kinematics.mode_alpha(k, geometry), (n, 1))
-        alpha[: n // 2] += rng.normal(0, 0.01, (n // 2, 2))  # off the ideal configuration too
-    sd = rng.normal(0, 1.0, (n, nk))
-    sd[: n // 4] *= 0.01  # inside the tanh region (|v| ~ eps)
-    sdd = rng.normal(0, 3.0, (n, nk))
-    return alpha, alpha_v, sd, sdd
 
 
 def relative_error(u, ref):

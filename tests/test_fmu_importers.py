@@ -15,7 +15,7 @@ from qomni.fmu.cosim import MOTOR_TORQUE, REAL_OUTPUTS, FmuSlave  # noqa: E402
 from qomni.fmu.export import export_feedforward_fmu, export_plant_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
-from test_fmu_plant import identification  # noqa: E402
+from doubles import identification  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

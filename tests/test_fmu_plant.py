@@ -21,24 +21,17 @@ from qomni.fmu.export import export_plant_fmu  # noqa: E402
 from qomni.ident import kinematics  # noqa: E402
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.dynamics import forward_dynamics  # noqa: E402
-from qomni.conventions import P1_NAMES  # noqa: E402
-from qomni.ident.result import IdentificationResult  # noqa: E402
-from test_fmu_codegen import random_states  # noqa: E402
+from doubles import P_VALUES, identification, random_states  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 SHEET = DataSheet.load()
 G, I_G, TS = SHEET.geometry, SHEET.drive.i_G, SHEET.drive.cycle_time
 EPS = 0.01
-P_VALUES = np.array([0.3342, 4.4649, 12.9458, 0.4501, 2.4820, 17.1071, 842.0684, 286.5955, 0.7316, 3.9656, 0.121])
 REF = R.PlantParameters(P_VALUES, G, I_G, EPS)
 _D = ctypes.POINTER(ctypes.c_double)
 
 
-def identification() -> IdentificationResult:
-    values = dict(zip(P1_NAMES, P_VALUES[:10]))
-    return IdentificationResult(values=values, std={n: 0.01 * v for n, v in values.items()}, B_w=P_VALUES[10],
-                                condition_number=12.0, rows_used={}, rows_total={}, residual_rms={})
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from qomni.hil.master.client import CommunicationError, DriveFaultError, Vehicle
 from qomni.hil.device.drive402 import PowerState
 from qomni.vehicle_interface import Measurement, VehicleInterface
 from qomni.hil.device.server import VehicleServer
-from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+from doubles import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
 

@@ -17,7 +17,7 @@ from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
 from qomni.hil.pdo_codec import PdoMappingError, build_codec
 from qomni.hil.device.server import VehicleServer
 from qomni.hil.units import counts_to_alpha
-from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+from doubles import BITS, INCREMENTS, T_S, FakePlant
 
 RATED = 2.0                              # N m, FakePlant's rated torque (0x6076 = 2000 mN m)
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS

@@ -15,7 +15,7 @@ from qomni.hil.master.client import VehicleClient
 from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
 from qomni.hil.tools.recorder import replay
 from qomni.hil.device.server import VehicleServer
-from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+from doubles import BITS, INCREMENTS, T_S, FakePlant
 
 N_CYCLES = 40
 

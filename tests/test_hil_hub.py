@@ -16,7 +16,7 @@ import pytest
 from qomni.hil.master.client import VehicleClient
 from qomni.hil.tools.hub import Hub, hub_bus_spec, open_hub_bus
 from qomni.hil.device.server import VehicleServer
-from test_hil_protocol import BITS, INCREMENTS, T_S, FakePlant
+from doubles import BITS, INCREMENTS, T_S, FakePlant
 
 RAD_PER_INCREMENT = 2 * np.pi / INCREMENTS
 

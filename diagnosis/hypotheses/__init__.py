@@ -39,26 +39,25 @@ heavy_steering_units       exact point masses at the wheel centres          m_w 
 """
 from __future__ import annotations
 
-from .actuator_delay import ACTUATOR_DELAY
-from .backlash import BACKLASH
+import importlib
+import pkgutil
+
 from .base import Hypothesis, Magnitude, plausible
 from .generic import generic
-from .heavy_steering_units import HEAVY_STEERING_UNITS
-from .incline import INCLINE
-from .payload import PAYLOAD
-from .rolling_resistance import ROLLING_RESISTANCE
-from .steering_compliance import STEERING_COMPLIANCE
-from .stribeck import STRIBECK_STEERING, STRIBECK_WHEELS
-from .tire_slip import TIRE_SLIP
-from .torque_constant_error import TORQUE_CONSTANT
-from .wheel_radius import WHEEL_RADIUS
 
-LIBRARY: tuple[Hypothesis, ...] = (
-    PAYLOAD, INCLINE, STRIBECK_WHEELS, STRIBECK_STEERING, ROLLING_RESISTANCE, ACTUATOR_DELAY,
-    *TORQUE_CONSTANT, WHEEL_RADIUS, BACKLASH, STEERING_COMPLIANCE, TIRE_SLIP, HEAVY_STEERING_UNITS,
-)
-"""Every hypothesis the diagnosis tests."""
 
-__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "generic", "plausible", "ACTUATOR_DELAY", "BACKLASH",
-           "HEAVY_STEERING_UNITS", "INCLINE", "PAYLOAD", "ROLLING_RESISTANCE", "STEERING_COMPLIANCE",
-           "STRIBECK_STEERING", "STRIBECK_WHEELS", "TIRE_SLIP", "TORQUE_CONSTANT", "WHEEL_RADIUS"]
+def _discover() -> tuple[Hypothesis, ...]:
+    """The ``HYPOTHESES`` of every plug-in module of this package, in module-name order."""
+    found: list[Hypothesis] = []
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        found += getattr(module, "HYPOTHESES", ())
+    return tuple(found)
+
+
+#: Every hypothesis the diagnosis tests: a plug-in module of this package that declares ``HYPOTHESES`` is
+#: part of it by being there.
+LIBRARY: tuple[Hypothesis, ...] = _discover()
+
+
+__all__ = ["Hypothesis", "Magnitude", "LIBRARY", "generic", "plausible"]

@@ -29,3 +29,6 @@ def _delay_magnitude(theta, cov, cycles, sheet):
 ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), _delay_columns, DELAY_STEPS,
                             magnitude=_delay_magnitude, physical=lambda t: 0.3 < t[0] < 3.0,
                             nonlinear_unit="cycles")
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (ACTUATOR_DELAY,)

@@ -32,3 +32,6 @@ BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns,
 
 
 #: Tyre/floor friction coefficient the scrub of a toed wheel is taken at (dry rubber on concrete, the
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (BACKLASH,)

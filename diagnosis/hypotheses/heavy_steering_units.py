@@ -52,3 +52,6 @@ HEAVY_STEERING_UNITS = Hypothesis(
     "heavy_steering_units", "", ("wheel_mass",), _heavy_columns,
     magnitude=_linear_magnitude(0, "kg", "mass per steering unit at the wheel centre"),
     physical=lambda t: t[0] > 0)
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (HEAVY_STEERING_UNITS,)

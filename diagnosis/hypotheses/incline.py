@@ -36,3 +36,6 @@ def _incline_magnitude(theta, cov, nonlinear, sheet):
 #: is no incline to report, however well a long campaign determines it.
 INCLINE = Hypothesis("incline", "", ("sin_x", "sin_y"), _incline_columns, magnitude=_incline_magnitude,
                      relevant=math.sin(1e-3), size=lambda t: float(np.hypot(t[0], t[1])))
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (INCLINE,)

@@ -28,3 +28,6 @@ PAYLOAD = Hypothesis(
     physical=lambda t: t[0] > 0 and t[1] > -1e-9,
     absorbed_by=("m_ch", "C_ch"),
     folds_into={"m_ch": ("delta_m", lambda p, r: 1.0), "C_ch": ("delta_C", lambda p, r: 1.0)})
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (PAYLOAD,)

@@ -26,3 +26,6 @@ ROLLING_RESISTANCE = Hypothesis(
     magnitude=_linear_magnitude(0, "-", "rolling-resistance coefficient"),
     physical=lambda t: t[0] > 0, absorbed_by=("d_cw",), relevant=0.003,
     folds_into={"d_cw": ("c_rr", lambda p, r: p[6] * GRAVITY * r / 4)})
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (ROLLING_RESISTANCE,)

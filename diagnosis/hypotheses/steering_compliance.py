@@ -117,3 +117,6 @@ STEERING_COMPLIANCE = Hypothesis(
     magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k "
                                 f"(scrub taken at μ = {SCRUB_FRICTION})"),
     physical=lambda t: t[0] > 0 and 0 <= t[1] <= S_ROT_MAX * t[0], relevant=1e-4)
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (STEERING_COMPLIANCE,)

@@ -154,3 +154,6 @@ STRIBECK_STEERING = Hypothesis(
     "stribeck", "joints=steering", ("breakaway_excess",), _stribeck_steering_columns,
     STRIBECK_VELOCITIES, magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (steering joints)"),
     physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (STRIBECK_WHEELS, STRIBECK_STEERING,)

@@ -45,3 +45,6 @@ def _slip_columns(ch: ChannelData, _):
 TIRE_SLIP = Hypothesis("tire_slip", "", ("inverse_cornering_stiffness",), _slip_columns,
                        magnitude=_linear_magnitude(0, "rad/N", "1/C_α per wheel"),
                        physical=lambda t: t[0] > 0, relevant=2e-5)
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (TIRE_SLIP,)

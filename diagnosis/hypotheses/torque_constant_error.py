@@ -23,3 +23,6 @@ TORQUE_CONSTANT = tuple(
     Hypothesis("torque_constant_error", f"drive {w}", ("factor_minus_one",), _torque_constant(j),
                magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"))
     for j, w in enumerate(WHEELS))
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (*TORQUE_CONSTANT,)

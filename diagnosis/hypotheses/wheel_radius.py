@@ -39,3 +39,6 @@ def _radius_magnitude(theta, cov, nonlinear, sheet):
 #: two runs of the same vehicle differ by ~0.03 %; a real radius error of worn or other tyres is 1–5 %.
 WHEEL_RADIUS = Hypothesis("wheel_radius", "", ("r_ratio_minus_one",), _radius_columns,
                           magnitude=_radius_magnitude, relevant=0.0025)
+
+#: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
+HYPOTHESES = (WHEEL_RADIUS,)

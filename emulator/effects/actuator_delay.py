@@ -11,6 +11,12 @@ from .base import Effect, EffectsError, Param, Plant
 
 class ActuatorDelay(Effect):
     name = "actuator_delay"
+    stage = 100
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "actuator_delay": ({"delay": 0.004},
+                           {"delay": 0.01}),
+    }
     summary = "applied torque lags the reported torque by a dead time"
     params = {
         "delay": Param("s", 0.0, 0.1, doc="dead time, a multiple of the physics step (1 ms)"),

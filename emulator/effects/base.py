@@ -112,7 +112,11 @@ class Plant:
 
 
 class Effect:
-    """One unmodelled effect; subclasses set ``name``, ``params`` and override the hooks they need.
+    """One unmodelled effect; subclasses set ``name``, ``params``, ``stage`` and override the hooks they need.
+
+    A subclass in a module of this package is registered by being there (``effect_set.REGISTRY``); its
+    ``stage`` orders it among the others where the emulator applies effects in turn (lower first: the
+    body's masses before the floor, the drive's torque path last).
 
     Instances hold their parameter values (``self.values``) and, once attached, their run-time state;
     the emulator builds a fresh instance per vehicle (``fresh``).
@@ -121,6 +125,10 @@ class Effect:
     name: ClassVar[str] = ""
     params: ClassVar[dict[str, Param]] = {}
     summary: ClassVar[str] = ""
+    stage: ClassVar[int] = 100
+    #: Blind-suite entries of the effect: entry name → (low, high) realistic magnitudes, each an effects-file
+    #: table (usually one entry named as the effect; several where the effect has variants).
+    suite: ClassVar[dict[str, tuple[dict, dict]]] = {}
 
     def __init__(self, **values):
         self.values = {key: values.get(key, spec.default) for key, spec in self.params.items()}

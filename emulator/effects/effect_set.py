@@ -2,29 +2,35 @@
 holding its parameters. ``docs/effects.md`` lists every effect with units and realistic ranges."""
 from __future__ import annotations
 
+import importlib
 import math
+import pkgutil
 import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Iterator
 
-from .actuator_delay import ActuatorDelay
-from .backlash import Backlash
 from .base import Effect, EffectsError, Param
 from .heavy_steering_units import HeavySteeringUnits
-from .incline import Incline
-from .payload import Payload
-from .rolling_resistance import RollingResistance
-from .steering_compliance import SteeringCompliance
-from .stribeck import Stribeck
-from .tire_slip import TireSlip
-from .torque_constant_error import TorqueConstantError
-from .wheel_radius import WheelRadius
 
-# Every effect, in the order the emulator applies them (the order of a file does not matter).
-REGISTRY: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    HeavySteeringUnits, Payload, WheelRadius, Backlash, Incline, SteeringCompliance, TireSlip,
-    Stribeck, RollingResistance, ActuatorDelay, TorqueConstantError)}
+
+def _discover() -> dict[str, type[Effect]]:
+    """Every :class:`Effect` subclass defined in a module of this package, by name, in stage order."""
+    package = __name__.rpartition(".")[0]
+    found: dict[str, type[Effect]] = {}
+    for info in pkgutil.iter_modules([str(Path(__file__).parent)]):
+        module = importlib.import_module(f"{package}.{info.name}")
+        for obj in vars(module).values():
+            if isinstance(obj, type) and issubclass(obj, Effect) and obj.name and obj.__module__ == module.__name__:
+                if obj.name in found:
+                    raise EffectsError(f"two effects are named {obj.name!r}: {found[obj.name]} and {obj}")
+                found[obj.name] = obj
+    return dict(sorted(found.items(), key=lambda item: (item[1].stage, item[0])))
+
+
+#: Every effect, in the order the emulator applies them (``Effect.stage``; the order of a file does not
+#: matter). A new effect module in this package is found here by itself.
+REGISTRY: dict[str, type[Effect]] = _discover()
 
 
 class EffectSet:

@@ -13,6 +13,12 @@ from qomni.conventions import GRAVITY
 
 class Incline(Effect):
     name = "incline"
+    stage = 50
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "incline": ({"angle": 0.01},
+                    {"angle": 0.02}),
+    }
     summary = "floor inclination (tilted gravity)"
     params = {
         "angle": Param("rad", 0.0, 0.3, doc="inclination of the floor"),

@@ -12,6 +12,12 @@ FOOTPRINT = (0.6, 0.5)  # m, x and y edges of the payload box
 
 class Payload(Effect):
     name = "payload"
+    stage = 20
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "payload": ({"mass": 150.0, "com_offset": [0.25, 0.15], "height": 0.3},
+                    {"mass": 300.0, "com_offset": [0.25, 0.15], "height": 0.3}),
+    }
     summary = "extra rigid mass on the chassis with a centre-of-mass offset"
     params = {
         "mass": Param("kg", 0.0, 2000.0, doc="payload mass"),

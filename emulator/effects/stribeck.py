@@ -12,6 +12,14 @@ from .base import Effect, Param, Plant
 
 class Stribeck(Effect):
     name = "stribeck"
+    stage = 80
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "stribeck_wheels": ({"joints": "wheels", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
+                            {"joints": "wheels", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
+        "stribeck_steering": ({"joints": "steering", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
+                              {"joints": "steering", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
+    }
     summary = "low-speed friction peak (breakaway above Coulomb) in the wheel or steering joints"
     params = {
         "joints": Param("-", kind="choice", choices=("wheels", "steering", "both"),

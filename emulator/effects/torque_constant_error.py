@@ -11,6 +11,12 @@ from .base import WHEELS, Effect, Param
 
 class TorqueConstantError(Effect):
     name = "torque_constant_error"
+    stage = 110
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "torque_constant_error": ({"factor": 0.92},
+                                  {"factor": 0.88}),
+    }
     summary = "one drive applies factor × its reported torque"
     params = {
         "drive": Param("-", kind="choice", choices=WHEELS, doc="the drive: fl, rl, fr or rr"),

@@ -9,6 +9,12 @@ from .base import BuildPlan, Effect, Param
 
 class WheelRadius(Effect):
     name = "wheel_radius"
+    stage = 30
+    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
+    suite = {
+        "wheel_radius": ({"radius": 0.098},
+                         {"radius": 0.096}),
+    }
     summary = "physical rolling radius differs from the data sheet's r"
     params = {
         "radius": Param("m", 0.05, 0.2, doc="effective rolling radius of all four wheels"),

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import sympy as sp
 
 from qomni.ident import kinematics as K
 from qomni.ident import symbolic as S
