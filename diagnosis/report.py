@@ -4,11 +4,12 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import math
 from pathlib import Path
 
 import numpy as np
+
+from qomni.ident.rundir import write_json
 
 from .diagnose import Diagnosis
 from .evaluation import predicted_residual
@@ -189,10 +190,10 @@ def write_report(d: Diagnosis, out: str | Path) -> tuple[Path, Path]:
     out.mkdir(parents=True, exist_ok=True)
     gap = gap_dict(d)
     json_path = out / GAP_JSON
-    json_path.write_text(json.dumps(gap, indent=2))
+    write_json(json_path, gap)
     augmented = augmented_identification(d)
     if augmented is not None:
-        (out / AUGMENTED_JSON).write_text(json.dumps(_finite(augmented), indent=2))
+        write_json(out / AUGMENTED_JSON, _finite(augmented))
         if d.data_metadata is not None and d.data_metadata.exists():
             # The data sheet export-fmu needs, so that `qomni export-fmu OUT` works on this directory.
             (out / "metadata.json").write_text(d.data_metadata.read_text())

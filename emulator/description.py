@@ -7,6 +7,7 @@ physics ([truth], [body], [noise]). See ``emulator/data/prototype.toml`` for the
 """
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
@@ -122,6 +123,18 @@ class VehicleDescription:
         for key in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw"):
             if getattr(t, key) < 0:
                 raise DescriptionError(f"{self.source}: truth.{key} must be >= 0")
+        # The body and the contact: masses are not negative, the solver needs a stiff, damped, frictional
+        # contact, and noise is a standard deviation (>= 0).
+        for key in ("steering_unit_mass", "wheel_transverse_inertia"):
+            if getattr(bd, key) < 0:
+                raise DescriptionError(f"{self.source}: body.{key} must be >= 0, got {getattr(bd, key)}")
+        for key in ("chassis_height", "tire_friction", "contact_stiffness", "contact_damping"):
+            if not getattr(bd, key) > 0:
+                raise DescriptionError(f"{self.source}: body.{key} must be > 0, got {getattr(bd, key)}")
+        for key in ("motor_torque_ripple", "torque_measurement", "steering_sensor_lsb"):
+            if getattr(self.noise, key) < 0:
+                raise DescriptionError(f"{self.source}: noise.{key} must be >= 0 (a standard deviation), "
+                                       f"got {getattr(self.noise, key)}")
         unit_mass = 4 * (bd.steering_unit_mass + bd.wheel_mass)
         if unit_mass >= t.m_ch:
             raise DescriptionError(
@@ -143,6 +156,8 @@ def _section(data: dict, name: str, kind: type, source: str):
         value = table[f.name]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise DescriptionError(f"{source}: [{name}] {f.name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise DescriptionError(f"{source}: [{name}] {f.name} must be finite, got {value!r}")
         values[f.name] = int(value) if f.type in ("int", int) else float(value)
     unknown = set(table) - {f.name for f in fields(kind)}
     if unknown:

@@ -9,7 +9,6 @@ far stays on disk.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -25,7 +24,7 @@ from .controller import ControllerSettings, StepController, quintic_alignment
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .recording import SignalWriter
-from .rundir import METADATA, SIGNALS
+from .rundir import METADATA, SIGNALS, write_json
 
 IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
@@ -252,10 +251,7 @@ class Campaign:
         }
 
     def _write_metadata(self, meta: dict) -> None:
-        path = self.run_dir / METADATA
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(meta, indent=2))
-        tmp.replace(path)
+        write_json(self.run_dir / METADATA, meta)
 
 
 def _cycles(step: ExcitationStep, cycle_time: float) -> int:

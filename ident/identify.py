@@ -6,23 +6,24 @@ for fitting and validates the result (Fig. 6). Both write their result into the 
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from . import filtering
-from .campaign import VALIDATION_STEP
+from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
 from .result import IdentificationResult
 from .estimation import estimate
 from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
                              identification_blocks, validation_blocks)
-from .rundir import IDENTIFICATION_JSON, VALIDATION_JSON, b_w_source, load_identification, load_run
+from .rundir import (IDENTIFICATION_JSON, METADATA, VALIDATION_JSON, b_w_source, load_identification, load_run,
+                     require_complete, write_json)
 from .validation import ValidationResult, compare_generalized_torques
 
 
 def identify_run(run_dir: str | Path) -> IdentificationResult:
     """Identify from a run directory and write ``identification.json`` into it."""
     run_dir = Path(run_dir)
-    signals, sheet, _ = load_run(run_dir)
+    signals, sheet, meta = load_run(run_dir)
+    require_complete(meta, IDENTIFICATION_STEPS, str(run_dir / METADATA))
     B_w, source = b_w_source(run_dir, sheet)
     lag = correlation_lag(sheet.drive.cycle_time)
     result = estimate(identification_blocks(signals, sheet), B_w,
@@ -33,14 +34,16 @@ def identify_run(run_dir: str | Path) -> IdentificationResult:
     data["velocity_threshold"] = VELOCITY_THRESHOLD
     data["coulomb_velocity_cutoff"] = {"value": COULOMB_VELOCITY_CUTOFF, "unit": "rad/s"}
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
-    (run_dir / IDENTIFICATION_JSON).write_text(json.dumps(data, indent=2))
+    data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS)}
+    write_json(run_dir / IDENTIFICATION_JSON, data)
     return result
 
 
 def validate_run(run_dir: str | Path) -> ValidationResult:
     """Validate ``identification.json`` on the lane change and write ``validation.json``."""
     run_dir = Path(run_dir)
-    signals, sheet, _ = load_run(run_dir)
+    signals, sheet, meta = load_run(run_dir)
+    require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     result = load_identification(run_dir)
     blocks = validation_blocks(signals, sheet)
     validation = compare_generalized_torques(blocks, result)
@@ -58,5 +61,5 @@ def validate_run(run_dir: str | Path) -> ValidationResult:
             moving[str(block.channel[0])] = {"nrmse": None, "n_rows": 0}
     data["moving_rows"] = {"velocity_threshold": VELOCITY_THRESHOLD, "channels": moving}
     validation.moving = moving
-    (run_dir / VALIDATION_JSON).write_text(json.dumps(data, indent=2))
+    write_json(run_dir / VALIDATION_JSON, data)
     return validation

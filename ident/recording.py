@@ -86,15 +86,21 @@ def header() -> list[str]:
 
 
 class SignalWriter:
-    """Appends one row per cycle to ``signals.csv``; use as a context manager."""
+    """Writes one row per cycle to a new ``signals.csv``; use as a context manager.
+
+    Raises:
+        RecordingError: the file exists already (a recording is never appended to an old run).
+    """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        new = not self.path.exists() or self.path.stat().st_size == 0
-        self._file = open(self.path, "a", newline="")
+        try:
+            self._file = open(self.path, "x", newline="")
+        except FileExistsError:
+            raise RecordingError(f"{self.path} exists: a recording is never appended to an old run; "
+                                 "choose a new run directory (or --force to replace it)") from None
         self._csv = csv.writer(self._file)
-        if new:
-            self._csv.writerow(header())
+        self._csv.writerow(header())
         self.rows = 0
 
     def write(self, step: str, k: int, measurement, motor_torque_cmd) -> None:
@@ -129,12 +135,23 @@ class SignalWriter:
         self.close()
 
 
+def _check_order(path: Path, time: np.ndarray) -> None:
+    """One row per SYNC in the order recorded: time (the SYNC count × T_s) increases strictly. A step
+    reversed in time, rows copied, or two runs in one file fail here."""
+    back = np.flatnonzero(np.diff(time) <= 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise RecordingError(f"{path}:{i + 2}: time {time[i]!r} s does not increase (previous row "
+                             f"{time[i - 1]!r} s): rows reversed, duplicated or from two runs")
+
+
 def read_signals(path: str | Path) -> Signals:
     """Read ``signals.csv``.
 
     Raises:
         FileNotFoundError: no such file.
-        RecordingError: wrong header, a short row or a value that is not a number (file and line given).
+        RecordingError: wrong header, a short row, a value that is not a finite number or time not
+            increasing (file and line given).
     """
     path = Path(path)
     with open(path, newline="") as f:
@@ -168,6 +185,7 @@ def read_signals(path: str | Path) -> Signals:
                 raise RecordingError(f"{path}:{line}: column '{expected[col]}' is {text}")
             numeric[line - 2, col - 1 if col > 1 else 0] = value
     col = {name: i - 1 if i > 1 else 0 for i, (name, _) in enumerate(COLUMNS)}
+    _check_order(path, numeric[:, col["time"]])
 
     def block(prefix: str) -> np.ndarray:
         return numeric[:, [col[f"{prefix}_{w}"] for w in WHEELS]]

@@ -2,6 +2,7 @@
 fixed p₂, the fit's statistics, and its JSON form (``identification.json``)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -110,8 +111,20 @@ class IdentificationResult:
 
     @classmethod
     def from_json_dict(cls, d: Mapping) -> "IdentificationResult":
-        """Inverse of :meth:`to_json_dict`. Raises KeyError if a parameter is missing."""
+        """Inverse of :meth:`to_json_dict`.
+
+        Raises:
+            KeyError: a parameter is missing. ValueError: a value or standard deviation is not finite, a
+                standard deviation is negative or B_w is not positive (the key named).
+        """
         params = d["parameters"]
+        for name in (*P1_NAMES, "B_w"):
+            value = float(params[name]["value"])
+            std = float(params[name].get("std", 0.0) or 0.0) if name == "B_w" else float(params[name]["std"])
+            if not (math.isfinite(value) and math.isfinite(std) and std >= 0):
+                raise ValueError(f"parameters.{name}: value {value} and std {std} must be finite, std >= 0")
+        if not float(params["B_w"]["value"]) > 0:
+            raise ValueError(f"parameters.B_w.value must be > 0 kg m^2, got {params['B_w']['value']}")
         cov = d.get("covariance")
         if cov is not None:
             if list(cov["names"]) != list(P1_NAMES):

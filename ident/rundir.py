@@ -6,7 +6,11 @@ A run directory is the interface between recording (the campaign, ``qomni decode
 from __future__ import annotations
 
 import json
+import math
+import os
 from pathlib import Path
+
+import numpy as np
 
 from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
 
@@ -18,10 +22,71 @@ SIGNALS = "signals.csv"
 IDENTIFICATION_JSON = "identification.json"
 VALIDATION_JSON = "validation.json"
 SINGLE_AXIS_JSON = "single_axis.json"
+SINGLE_AXIS_DIR = "single_axis"
+BUS_BLF = "bus.blf"
+BUS_CANDUMP = "bus.log"
+BUS_DBC = "bus.dbc"
+FIG_IDENTIFICATION = "fig5_identification.png"
+FIG_VALIDATION = "fig6_validation.png"
+COMPARISON_JSON = "comparison.json"
+#: What a campaign writes into its run directory; a single-axis run writes SINGLE_AXIS_FILES beside it.
+CAMPAIGN_FILES = (SIGNALS, METADATA, BUS_BLF, BUS_CANDUMP, BUS_DBC, IDENTIFICATION_JSON, VALIDATION_JSON,
+                  FIG_IDENTIFICATION, FIG_VALIDATION, COMPARISON_JSON)
+SINGLE_AXIS_FILES = (SINGLE_AXIS_DIR, SINGLE_AXIS_JSON)
 
 
 class RunDirectoryError(ValueError):
-    """A run directory is missing a file or a campaign step."""
+    """A run directory is missing a file or a campaign step, or a file of it is invalid; the message names
+    the file and the key."""
+
+
+def read_json(path: Path) -> dict:
+    """A JSON object from ``path``.
+
+    Raises:
+        RunDirectoryError: the file is missing, truncated, not JSON or not an object (file and position).
+    """
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise RunDirectoryError(f"{path} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise RunDirectoryError(f"{path}: not valid JSON ({exc}); a truncated or edited file?") from None
+    if not isinstance(data, dict):
+        raise RunDirectoryError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Write ``data`` as JSON atomically: a temporary file beside ``path``, then renamed over it, so a
+    reader never sees a half-written file and a failed write leaves the old one."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def completed_steps(meta: dict, source: str) -> list[dict]:
+    """The steps the run completed, from ``segments`` of metadata.json: each ``{name, k, t_start, t_end}``
+    with finite, ordered times.
+
+    Raises:
+        RunDirectoryError: the list or an entry is malformed (file and entry named).
+    """
+    segments = meta.get("segments", [])
+    if not isinstance(segments, list):
+        raise RunDirectoryError(f"{source}: 'segments' must be a list")
+    out = []
+    for i, seg in enumerate(segments):
+        try:
+            name, k, t0, t1 = str(seg["name"]), int(seg["k"]), float(seg["t_start"]), float(seg["t_end"])
+        except (TypeError, KeyError, ValueError) as exc:
+            raise RunDirectoryError(f"{source}: segments[{i}] is incomplete or not numeric: {exc}") from None
+        if not (math.isfinite(t0) and math.isfinite(t1) and t0 <= t1):
+            raise RunDirectoryError(f"{source}: segments[{i}] ('{name}'): t_start {t0} must not exceed "
+                                    f"t_end {t1}, both finite")
+        out.append({"name": name, "k": k, "t_start": t0, "t_end": t1})
+    return out
 
 
 def step_signals(signals: Signals, name: str) -> Signals:
@@ -36,6 +101,22 @@ def step_signals(signals: Signals, name: str) -> Signals:
         raise RunDirectoryError(f"the recording has no complete '{name}' step: {exc}") from None
 
 
+def require_complete(meta: dict, steps, source: str) -> None:
+    """Refuse a run whose metadata says the campaign did not complete ``steps``.
+
+    Raises:
+        RunDirectoryError: a step is not among the completed segments (names the run's status).
+    """
+    if "segments" not in meta:
+        return
+    done = {seg["name"] for seg in completed_steps(meta, source)}
+    missing = [name for name in steps if name not in done]
+    if missing:
+        status = meta.get("status", "unknown")
+        raise RunDirectoryError(f"{source}: the campaign did not complete {', '.join(missing)} "
+                                f"(status: {status}); the rows of an incomplete step are never used")
+
+
 def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     """Signals, data sheet and metadata of a run directory.
 
@@ -46,9 +127,27 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     for name in (SIGNALS, METADATA):
         if not (run_dir / name).exists():
             raise RunDirectoryError(f"{run_dir}: no {name} (not a campaign run directory?)")
-    meta = json.loads((run_dir / METADATA).read_text())
+    meta = read_json(run_dir / METADATA)
     sheet = datasheet_from_metadata(meta, str(run_dir / METADATA))
-    return read_signals(run_dir / SIGNALS), sheet, meta
+    signals = read_signals(run_dir / SIGNALS)
+    return complete_rows(signals, meta, str(run_dir / METADATA)), sheet, meta
+
+
+def complete_rows(signals: Signals, meta: dict, source: str) -> Signals:
+    """The rows of the steps the run completed. A run that stopped (Ctrl-C, a fault, the steering near
+    its stops) keeps every row it recorded, but the step it stopped in never reached its end: its rows
+    are left out, so no later step finds a partial step to fit (``step_signals`` then names the step
+    and the run's status). A recording without segments (a decoded foreign log) is kept whole.
+
+    Raises:
+        RunDirectoryError: the segments are malformed.
+    """
+    segments = completed_steps(meta, source)
+    if not segments:
+        return signals
+    done = {seg["name"] for seg in segments}
+    keep = np.isin(signals.step, sorted(done)) | np.isin(signals.step, ["align", "rest"])
+    return signals if keep.all() else signals.select(keep)
 
 
 def datasheet_from_metadata(meta: dict, source: str) -> DataSheet:
@@ -72,8 +171,15 @@ def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
     """B_w for (24): the single-axis result of this run if there is one, else the data sheet's."""
     path = run_dir / SINGLE_AXIS_JSON
     if path.exists():
-        data = json.loads(path.read_text())
-        return float(data["pooled"]["B_w"]["value"]), "single-axis identification (lifted vehicle)"
+        data = read_json(path)
+        try:
+            value = float(data["pooled"]["B_w"]["value"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RunDirectoryError(f"{path}: pooled.B_w.value missing or not a number: {exc}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise RunDirectoryError(f"{path}: pooled.B_w.value must be a positive, finite inertia [kg m^2], "
+                                    f"got {value}")
+        return value, "single-axis identification (lifted vehicle)"
     return sheet.nominal.B_w, "data sheet"
 
 
@@ -84,4 +190,8 @@ def load_identification(path: str | Path) -> IdentificationResult:
         path = path / IDENTIFICATION_JSON
     if not path.exists():
         raise RunDirectoryError(f"{path} does not exist: run 'qomni identify' first")
-    return IdentificationResult.from_json_dict(json.loads(path.read_text()))
+    data = read_json(path)
+    try:
+        return IdentificationResult.from_json_dict(data)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RunDirectoryError(f"{path}: not an identification result ({type(exc).__name__}: {exc})") from None

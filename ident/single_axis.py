@@ -28,9 +28,8 @@ from .least_squares import RANK_TOL, lstsq, newey_west_cov, rms
 from .recording import SignalWriter, read_signals
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
 from .regressor_rows import applied_torque_at_samples, correlation_lag
-from .rundir import METADATA, SIGNALS, SINGLE_AXIS_JSON
+from .rundir import METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, write_json
 
-SINGLE_AXIS_DIR = "single_axis"
 STEP = "single_axis"
 
 
@@ -58,10 +57,8 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
     duration = max(tr.duration for tr in trajectories)
     gains = design_pd(30.0, 0.9, d.cycle_time)
     cycles = int(round(duration / d.cycle_time)) + 1
-    (out / METADATA).write_text(json.dumps({"format": "qomni-single-axis/1", "status": "running",
-                                            "duration": duration,
-                                            "trajectories": [tr.to_json_dict() for tr in trajectories]},
-                                           indent=2))
+    write_json(out / METADATA, {"format": "qomni-single-axis/1", "status": "running", "duration": duration,
+                                "trajectories": [tr.to_json_dict() for tr in trajectories]})
     writer = SignalWriter(out / SIGNALS)
     status = "complete"
     try:
@@ -89,7 +86,7 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
             writer.close()
             meta = json.loads((out / METADATA).read_text())
             meta["status"] = status
-            (out / METADATA).write_text(json.dumps(meta, indent=2))
+            write_json(out / METADATA, meta)
     return out
 
 
@@ -102,7 +99,7 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet) -> SingleAxisRes
     torque = filtering.zero_phase_lowpass(applied_torque_at_samples(sig.motor_torque), d.cycle_time)
     result = estimate_single_axis(beta_dot, beta_ddot, d.i_G * torque, velocity_threshold=0.5,
                                   correlation_lag=correlation_lag(d.cycle_time))
-    (run_dir / SINGLE_AXIS_JSON).write_text(json.dumps(result.to_json_dict(), indent=2))
+    write_json(run_dir / SINGLE_AXIS_JSON, result.to_json_dict())
     return result
 
 

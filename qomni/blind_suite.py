@@ -30,6 +30,7 @@ from pathlib import Path
 
 from qomni.conventions import WHEELS
 from qomni.emulator.effects.effect_set import REGISTRY
+from qomni.ident.rundir import write_json
 
 #: Realistic magnitudes per effect: (low, high). Each entry is one effects-file table.
 #: Realistic magnitudes per suite entry: (low, high) effects-file tables, as each effect declares them
@@ -337,5 +338,5 @@ def write_results(results: list[CaseResult], path: str | Path) -> dict:
     summary = score(results)
     data = {"summary": summary,
             "cases": [dict(asdict(r), top1=r.top1, false_positives=r.false_positives) for r in results]}
-    Path(path).write_text(json.dumps(data, indent=2))
+    write_json(Path(path), data)
     return summary

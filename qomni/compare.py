@@ -4,13 +4,11 @@ A separate, explicit step after identification; nothing here feeds back into est
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from qomni.emulator.description import VehicleDescription
-from qomni.ident.rundir import load_identification
+from qomni.ident.rundir import COMPARISON_JSON, load_identification, write_json
 
-COMPARISON_JSON = "comparison.json"
 
 
 def compare_with_truth(run_dir: str | Path, description: VehicleDescription) -> dict:
@@ -33,5 +31,5 @@ def compare_with_truth(run_dir: str | Path, description: VehicleDescription) -> 
                       "error_in_std": (value - true) / std if std > 0 else float("inf")}
     report = {"vehicle": description.name, "source": description.source, "parameters": rows,
               "B_w": {"fixed": result.B_w, "true": truth.B_w}}
-    (run_dir / COMPARISON_JSON).write_text(json.dumps(report, indent=2))
+    write_json(run_dir / COMPARISON_JSON, report)
     return report

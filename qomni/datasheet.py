@@ -26,6 +26,12 @@ DEFAULT_DATASHEET = "data/prototype_datasheet.toml"
 """Resource path (inside the ``qomni`` package) of the default prototype data sheet."""
 
 
+#: s, the SYNC periods a data sheet may give. Below 0.2 ms a CAN bus at 1 Mbit/s cannot carry the SYNC
+#: and one 8-byte PDO (≈ 0.05 + 0.13 ms with stuffing); above 50 ms the identification's zero-phase
+#: filter at ω_g = 40 rad/s is no longer well sampled (Nyquist π/T_s ≥ 63 rad/s).
+CYCLE_TIME_RANGE = (2e-4, 5e-2)
+
+
 class DataSheetError(ValueError):
     """A data-sheet file is missing a section or key, has a wrong type or an impossible value.
     The message names the file, the section and the key."""
@@ -161,6 +167,10 @@ class DataSheet:
         for key in ("i_G", "rated_torque", "cycle_time"):
             if not getattr(d, key) > 0:
                 fail("drive", key, "must be > 0", getattr(d, key))
+        if not CYCLE_TIME_RANGE[0] <= d.cycle_time <= CYCLE_TIME_RANGE[1]:
+            fail("drive", "cycle_time", f"must be within {CYCLE_TIME_RANGE[0]:g}–{CYCLE_TIME_RANGE[1]:g} s "
+                 "(a CAN cycle holds at least the SYNC and one PDO; the 40 rad/s filter needs the sampling "
+                 "well above its band)", d.cycle_time)
         if d.max_torque < d.rated_torque:
             fail("drive", "max_torque", "must be >= rated_torque", d.max_torque)
         if d.encoder_increments < 1:

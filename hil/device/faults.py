@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import heapq
 import logging
+import math
 import random
 import threading
 import time
@@ -55,6 +56,11 @@ _SYNC_COB_ID = 0x80
 
 class FaultPlanError(ValueError):
     """A fault plan is invalid: the message names the file, table and key."""
+
+
+#: s, the largest added latency (mean or jitter) a plan may give: ten times the drives' SYNC-loss time
+#: (0.1 s); longer, a frame is lost to every supervision on the bus, which [frame_loss] models.
+MAX_LATENCY = 1.0
 
 
 @dataclass(frozen=True)
@@ -139,6 +145,10 @@ class FaultPlan:
         for key in ("rate", "burst_rate"):
             if not 0.0 <= loss.get(key, 0.0) <= 1.0:
                 raise FaultPlanError(f"{source}: [frame_loss] {key} must be in [0, 1], got {loss[key]}")
+        for key in ("mean", "jitter"):
+            if lat.get(key, 0.0) > MAX_LATENCY:
+                raise FaultPlanError(f"{source}: [latency] {key} must be ≤ {MAX_LATENCY} s, got {lat[key]}: a frame "
+                                     "held longer is lost to every supervision on the bus; use [frame_loss]")
         for where, table in (("frame_loss", loss), ("latency", lat)):
             for key, value in table.items():
                 if value < 0:
@@ -160,6 +170,8 @@ def _check_value(value, kind, where: str):
         value = float(value)
     if not isinstance(value, kind) or isinstance(value, bool):
         raise FaultPlanError(f"{where} must be {'a number' if kind is float else 'an integer'}, got {value!r}")
+    if kind is float and not math.isfinite(value):
+        raise FaultPlanError(f"{where} must be finite (a fault at nan never happens), got {value!r}")
     if value < 0:
         raise FaultPlanError(f"{where} must be ≥ 0, got {value}")
     return value

@@ -65,6 +65,7 @@ class DecodeReport:
     sessions: int = 0
     rated_torque: list = field(default_factory=list)
     rated_torque_source: str = ""
+    warnings: list = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -203,7 +204,31 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
         reader = can.LogReader(str(path))
     except ValueError as exc:
         raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
-    return _cycles(reader, mapping, period, rated, report, encoder_increments, steering_sensor_bits)
+    except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
+        raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+    announced = getattr(reader, "file_size", None)                   # BLF: the size its header announces
+    if announced and path.stat().st_size < announced:
+        report.warnings.append(f"{path}: {path.stat().st_size} of the {announced} bytes the BLF header "
+                               "announces: the file is cut; only the frames before the cut are decoded")
+    return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
+                   steering_sensor_bits)
+
+
+def _frames(reader, path: Path):
+    """The log's frames; a frame the reader cannot parse ends the decode naming file and frame number
+    (for line-based formats such as candump ``-L`` the line is the frame number, less any header)."""
+    count = 0
+    iterator = iter(reader)
+    while True:
+        try:
+            msg = next(iterator)
+        except StopIteration:
+            return
+        except Exception as exc:                                     # noqa: BLE001 - any reader's parse error
+            raise DecodeError(f"{path}: cannot read frame {count + 1} (after {count} good frames): "
+                              f"{type(exc).__name__}: {exc}") from None
+        count += 1
+        yield msg
 
 
 def _cycles(reader, mapping, period, rated, report, encoder_increments, steering_sensor_bits):

@@ -1,7 +1,6 @@
 """``qomni campaign``, ``single-axis``, ``identify``, ``validate`` and ``compare``."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Optional
@@ -11,9 +10,13 @@ from rich.table import Table
 
 from .app import app
 from .console import console, fail, guarded, run_with_progress
-from .loaders import load_datasheet, load_description, load_effects, load_faults, vehicle_link
+from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICATION, FIG_VALIDATION,
+                                IDENTIFICATION_JSON, METADATA, SINGLE_AXIS_DIR, SINGLE_AXIS_FILES, VALIDATION_JSON,
+                                read_json)
 
-BUS_LOG = "bus.blf"
+from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
+                      vehicle_link)
+
 
 
 @app.command()
@@ -23,7 +26,7 @@ def campaign(
                                       "'socketcan:can0'. Default: the embedded emulator."),
     vehicle: Optional[Path] = typer.Option(None, help="Vehicle description TOML (emulator) / data sheet."),
     datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
-    seed: int = typer.Option(0, help="Seed of the embedded emulator's noise."),
+    seed: int = typer.Option(0, min=0, help="Seed of the embedded emulator's noise."),
     quick: bool = typer.Option(False, help="Short campaign (≈ 35 s emulated) for smoke tests."),
     single_axis: Optional[bool] = typer.Option(
         None, "--single-axis/--no-single-axis",
@@ -37,6 +40,7 @@ def campaign(
     effects: Optional[Path] = typer.Option(
         None, help="Effects file (TOML, docs/effects.md) for the embedded emulator: the ideal vehicle "
                    "plus the effects it lists. Default: the prototype as described."),
+    force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
@@ -46,15 +50,14 @@ def campaign(
         fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
               "serving the vehicle on --bus")
     fault_plan = load_faults(faults)
-    if (out / "signals.csv").exists():
-        fail(f"{out} already holds a campaign; choose a new --out")
-    out.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
+    check_bus_spec(bus)
     if single_axis is None:
         single_axis = bus is None
     if effects is not None and bus is not None:
         fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
     effect_set = load_effects(effects)
+    prepare_out(out, CAMPAIGN_FILES + (SINGLE_AXIS_FILES if single_axis else ()), force)
+    started = time.perf_counter()
     if single_axis:
         _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
     settings = CampaignSettings.quick() if quick else CampaignSettings()
@@ -64,15 +67,15 @@ def campaign(
     except ValueError as exc:
         fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
-        with vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_LOG, effect_set,
+        with vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_BLF, effect_set,
                            faults=fault_plan) as link:
             run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
     from qomni.hil.tools.dbc import write_dbc
 
-    write_dbc(out / "bus.dbc")  # decodes bus.blf in CANoe, cantools, candump-based tools
-    rect = json.loads((out / "metadata.json").read_text())["occupied_rectangle"]
+    write_dbc(out / BUS_DBC)  # decodes bus.blf in CANoe, cantools, candump-based tools
+    rect = read_json(out / METADATA)["occupied_rectangle"]
     console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
                   f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
     _identify_and_report(out)
@@ -81,14 +84,14 @@ def campaign(
 
 def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=None) -> None:
     from qomni.ident.campaign import CampaignAborted
-    from qomni.ident.single_axis import (SINGLE_AXIS_DIR, identify_single_axis, plan_single_axis,
+    from qomni.ident.single_axis import (identify_single_axis, plan_single_axis,
                                    run_single_axis)
 
     (out / SINGLE_AXIS_DIR).mkdir(parents=True, exist_ok=True)
     trajectories = plan_single_axis()
     try:
         with vehicle_link(bus, vehicle, sheet, seed, True, gui,
-                           out / SINGLE_AXIS_DIR / BUS_LOG, effects) as link:
+                           out / SINGLE_AXIS_DIR / BUS_BLF, effects) as link:
             run_with_progress("single axis",
                                lambda cb: run_single_axis(link, sheet, out, trajectories, on_progress=cb))
     except CampaignAborted as exc:
@@ -105,12 +108,14 @@ def single_axis_command(
     bus: Optional[str] = typer.Option(None, help="Bus of the lifted vehicle; default: embedded emulator."),
     vehicle: Optional[Path] = typer.Option(None, help="Vehicle description / data sheet TOML."),
     datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
-    seed: int = typer.Option(0, help="Seed of the embedded emulator's noise."),
+    seed: int = typer.Option(0, min=0, help="Seed of the embedded emulator's noise."),
     gui: bool = typer.Option(False, help="Show the PyBullet GUI."),
+    force: bool = typer.Option(False, help="Replace the single-axis run already in --out."),
 ):
     """Identify B_w, d_vw, d_cw per wheel on the lifted vehicle (wheels free)."""
     sheet = load_datasheet(vehicle, datasheet)
-    out.mkdir(parents=True, exist_ok=True)
+    check_bus_spec(bus)
+    prepare_out(out, SINGLE_AXIS_FILES, force)
     _single_axis(out, bus, vehicle, sheet, seed, gui)
 
 
@@ -160,10 +165,10 @@ def _plots(run_dir: Path, result, validation) -> None:
     signals, sheet, _ = load_run(run_dir)
     times = {name: signals.of_step(name).time for name in signals.steps()}
     torque_comparison(identification_blocks(signals, sheet), times, result,
-                      run_dir / "fig5_identification.png",
+                      run_dir / FIG_IDENTIFICATION,
                       "Identification experiment: generalized torques (cf. paper Fig. 5)")
     torque_comparison(validation_blocks(signals, sheet), times, result,
-                      run_dir / "fig6_validation.png",
+                      run_dir / FIG_VALIDATION,
                       "Validation experiment (lane change): generalized torques (cf. paper Fig. 6)",
                       nrmse=validation.nrmse)
 
@@ -174,7 +179,7 @@ def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campai
     from qomni.ident.identify import identify_run
 
     _print_parameters(guarded(lambda: identify_run(run_dir)))
-    console.print(f"written {run_dir / 'identification.json'}")
+    console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
 
 @app.command()
@@ -186,7 +191,7 @@ def validate(run_dir: Path = typer.Argument(..., help="Run directory with identi
     validation = guarded(lambda: validate_run(run_dir))
     _print_validation(validation)
     _plots(run_dir, guarded(lambda: load_identification(run_dir)), validation)
-    console.print(f"written {run_dir / 'validation.json'}")
+    console.print(f"written {run_dir / VALIDATION_JSON}")
 
 
 @app.command()

@@ -4,15 +4,18 @@ The work is done in ``qomni.hil``; these commands wire it to the emulator (compo
 """
 from __future__ import annotations
 
+import math
+import os
 import time
 from pathlib import Path
 from typing import List, Optional
 
 import typer
+from rich.text import Text
 
 from .app import app
 from .console import console, fail
-from .loaders import load_description, load_effects, load_faults
+from .loaders import load_description, load_effects, load_faults, prepare_out
 
 
 @app.command()
@@ -24,7 +27,7 @@ def emulate(
                                   "samples). Default: lock-step, one physics cycle per SYNC."),
     effects: Optional[Path] = typer.Option(None, help="Effects file (TOML) on top of the ideal vehicle; "
                                            "default: the prototype as described."),
-    seed: int = typer.Option(0, help="Seed of the emulator's sensor noise."),
+    seed: int = typer.Option(0, min=0, help="Seed of the emulator's sensor noise."),
     faults: Optional[Path] = typer.Option(None, help="Fault plan (TOML, see hil/device/faults.py): frame loss, "
                                           "latency, power cycles, bus-off, SYNC loss."),
     duration: Optional[float] = typer.Option(None, help="Stop after this many seconds of wall time "
@@ -45,8 +48,11 @@ def emulate(
         parse_bus_spec(bus)
     except ValueError as exc:
         fail(str(exc))
-    if duration is not None and not duration > 0:
-        fail(f"--duration must be > 0 s, got {duration}")
+    for name, value in (("--duration", duration), ("--deadline", deadline), ("--sync-timeout", sync_timeout)):
+        if value is not None and not (value > 0 and math.isfinite(value)):
+            fail(f"{name} must be a positive number of seconds, got {value}")
+    if stats is not None and not stats.parent.is_dir():
+        fail(f"--stats {stats}: the directory {stats.parent} does not exist")
     plan = load_faults(faults)
     description = load_description(vehicle)
     kwargs = {} if effects is None else {"effects": load_effects(effects)}
@@ -74,14 +80,14 @@ def emulate(
         emulator.close()
     console.print(server.stats.report())
     if stats is not None:
-        import json
+        from qomni.ident.rundir import write_json
 
         summary = dict(server.stats.summary(), realtime=realtime, bus=bus)
         if server.injector is not None:
             from dataclasses import asdict
 
             summary["faults"] = asdict(server.injector.counters)
-        stats.write_text(json.dumps(summary, indent=2))
+        write_json(stats, summary)
     if server.injector is not None:
         c = server.injector.counters
         console.print(f"faults: frames lost rx {c.lost_rx} / tx {c.lost_tx}, SYNC dropped {c.sync_dropped}, "
@@ -100,7 +106,14 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
     """
     from qomni.hil.tools.hub import Hub, hub_bus_spec
 
-    with Hub(port=port, max_clients=max_clients) as running:
+    if not 0 <= port <= 65535 or max_clients < 1:
+        fail(f"--port must be 0…65535 and --max-clients at least 1, got {port} and {max_clients}")
+    running = Hub(port=port, max_clients=max_clients)
+    try:
+        running.start()
+    except OSError as exc:
+        fail(f"cannot listen on 127.0.0.1:{port}: {exc.strerror or exc} (another hub running? try --port 0)")
+    try:
         console.print(f"hub listening on 127.0.0.1:{running.port}; bus spec "
                       f"{hub_bus_spec(running.port)}; Ctrl-C stops it")
         try:
@@ -108,6 +121,8 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
                 time.sleep(1.0)
         except KeyboardInterrupt:
             console.print(f"hub stopped after {running.frames} frames ({running.dropped} dropped)")
+    finally:
+        running.stop()
 
 
 @app.command()
@@ -123,24 +138,25 @@ def decode(
     drive_eds: Optional[Path] = typer.Option(None, help="EDS/DCF of all four drives (default: hil's)."),
     encoder_eds: Optional[Path] = typer.Option(None, help="EDS/DCF of both encoders (default: hil's)."),
     dcf: Optional[List[Path]] = typer.Option(None, help="DCF of one node (repeatable)."),
+    force: bool = typer.Option(False, help="Replace a decoded run already in --out."),
 ):
     """Decode a recorded bus log (ours or another tool's) with the EDS/DCF PDO mapping into a run directory."""
-    import json
 
     from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
     from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
-    from qomni.ident.rundir import METADATA, SIGNALS
+    from qomni.ident.rundir import METADATA, SIGNALS, write_json
     from qomni.datasheet import DataSheet, DataSheetError
-    from qomni.ident.rundir import RunDirectoryError, datasheet_from_metadata
+    from qomni.ident.rundir import RunDirectoryError, completed_steps, datasheet_from_metadata, read_json
     from qomni.ident.recording import SignalWriter
 
-    if (out / SIGNALS).exists():
-        fail(f"{out / SIGNALS} exists; choose a new --out")
+    prepare_out(out, (SIGNALS, METADATA), force)
+    partial = out / f".{SIGNALS}.partial"
     meta: dict = {}
     try:
         if metadata is not None:
-            meta = json.loads(metadata.read_text())
+            meta = read_json(metadata)
             sheet = datasheet_from_metadata(meta, str(metadata))
+            completed_steps(meta, str(metadata))
         else:
             sheet = DataSheet.load(datasheet)
     except (OSError, ValueError, DataSheetError, RunDirectoryError) as exc:
@@ -153,11 +169,16 @@ def decode(
         cycles = decode_log(log, encoder_increments=drive.encoder_increments,
                             steering_sensor_bits=drive.steering_sensor_bits, cycle_time=drive.cycle_time,
                             rated_torque=drive.rated_torque, files=files, report=report)
-        out.mkdir(parents=True, exist_ok=True)
-        rows, eps = 0, 1e-9
-        with SignalWriter(out / SIGNALS) as writer:
+        rows, eps, last = 0, 1e-9, -float("inf")
+        partial.unlink(missing_ok=True)
+        with SignalWriter(partial) as writer:
             for cycle in cycles:
                 t = cycle.measurement.time
+                if t <= last:
+                    raise DecodeError(f"{log}: the SYNC count restarts at {t:.3f} s after {last:.3f} s: the log "
+                                      f"holds {report.sessions or 'several'} sessions (NMT start); cut it into "
+                                      "one log per session, each its own run")
+                last = t
                 if segments:
                     seg = next((s for s in segments if s["t_start"] + eps < t <= s["t_end"] + eps), None)
                     if seg is None:
@@ -168,10 +189,15 @@ def decode(
                 writer.write(name, k, cycle.measurement, cycle.motor_torque_cmd)
                 rows += 1
     except (DecodeError, FileNotFoundError) as exc:
+        partial.unlink(missing_ok=True)
         fail(str(exc))
     if rows == 0:
+        partial.unlink(missing_ok=True)
         fail(f"{log}: no complete SYNC cycle decoded ({report.frames} frames, {report.incomplete} "
               "incomplete cycles); wrong EDS/DCF mapping or not a log of this vehicle?")
+    os.replace(partial, out / SIGNALS)
+    for warning in report.warnings:
+        console.print(Text.assemble(("warning:", "bold yellow"), f" {warning}"))
     if not meta:
         from dataclasses import asdict
 
@@ -180,10 +206,10 @@ def decode(
                               "nominal": asdict(sheet.nominal)}, "segments": []}
     meta = dict(meta, source=f"decoded from {log}", decoded={
         "log": str(log), "frames": report.frames, "cycles": report.cycles, "rows": rows,
-        "incomplete_cycles": report.incomplete, "sessions": report.sessions,
+        "incomplete_cycles": report.incomplete, "sessions": report.sessions, "warnings": report.warnings,
         "rated_torque": {"value": report.rated_torque, "unit": "N m", "source": report.rated_torque_source},
         "mapping": {str(k): str(v) for k, v in files.items()}})
-    (out / METADATA).write_text(json.dumps(meta, indent=2))
+    write_json(out / METADATA, meta)
     console.print(f"decoded {report.cycles} cycles ({report.incomplete} incomplete skipped) from "
                   f"{report.frames} frames into {out / SIGNALS}: {rows} rows"
                   + ("" if segments else "; no --metadata segments, so every row is step 'recorded' "

@@ -2,8 +2,9 @@
 link: each a bad file ends the command with the reader's message (:func:`qomni.cli.console.fail`)."""
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
-from typing import Optional
+from typing import Iterable, Optional
 
 from .console import fail
 
@@ -66,3 +67,39 @@ def vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, 
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
 
+
+
+def check_bus_spec(bus: Optional[str]) -> None:
+    """A ``--bus`` value that python-can can open (checked before anything is created on disk)."""
+    if bus is None:
+        return
+    from qomni.hil.bus import parse_bus_spec
+
+    try:
+        parse_bus_spec(bus)
+    except ValueError as exc:
+        fail(str(exc))
+
+
+def prepare_out(out: Path, owned: Iterable[str], force: bool) -> None:
+    """Make ``out`` a directory to write a new run into; nothing is ever appended to an old run.
+
+    ``owned``: the files and folders the command writes. If any exists, the command is refused unless
+    ``force``, which removes exactly those (a campaign keeps a single-axis run beside it and vice versa).
+    """
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out} is a file, not a directory")
+    present = [name for name in owned if (out / name).exists()]
+    if present and not force:
+        fail(f"{out} already holds {', '.join(present)} of an earlier run; choose a new --out or pass "
+             "--force to replace them")
+    try:
+        for name in present:
+            target = out / name
+            shutil.rmtree(target) if target.is_dir() else target.unlink()
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".qomni-write-test"
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        fail(f"cannot write into {out}: {exc.strerror or exc}")

@@ -1,0 +1,200 @@
+"""Never a silent wrong result: partial runs, bad files and ordinary mistakes end in one clear error (file,
+line or section, key), and the CLI prints it plainly with a non-zero exit and no traceback."""
+from __future__ import annotations
+
+import gzip
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from qomni.cli import app
+from qomni.datasheet import DataSheet, DataSheetError
+from qomni.emulator.description import DescriptionError, VehicleDescription
+from qomni.ident.identify import identify_run
+from qomni.ident.recording import RecordingError, SignalWriter, read_signals
+from qomni.ident.rundir import RunDirectoryError, b_w_source, load_identification, load_run
+from qomni.vehicle_interface import Measurement
+
+DATA = Path(__file__).parent / "data" / "fmu_accuracy_run"
+PROTOTYPE = Path(__file__).resolve().parents[1] / "emulator" / "data" / "prototype.toml"
+runner = CliRunner()
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    """A recorded run (straight and rotation steps; the campaign stopped in the lane change)."""
+    d = tmp_path / "run"
+    d.mkdir()
+    shutil.copy(DATA / "metadata.json", d)
+    shutil.copy(DATA / "identification.json", d)
+    with gzip.open(DATA / "signals.csv.gz", "rb") as f:
+        (d / "signals.csv").write_bytes(f.read())
+    return d
+
+
+def _edit_metadata(run: Path, **changes) -> dict:
+    meta = json.loads((run / "metadata.json").read_text())
+    meta.update(changes)
+    (run / "metadata.json").write_text(json.dumps(meta))
+    return meta
+
+
+def _cli(*args):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    return result
+
+
+# --- 1. a partial run ---------------------------------------------------------------------------------
+def test_identification_refuses_a_run_that_stopped_in_an_identification_step(run_dir):
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    cut = [s for s in meta["segments"] if s["name"] != "rotation"][:-2]      # stopped during the rotation
+    _edit_metadata(run_dir, segments=cut, status="aborted: KeyboardInterrupt: ")
+    with pytest.raises(RunDirectoryError, match=r"did not complete .*rotation.*aborted"):
+        identify_run(run_dir)
+    signals, _, _ = load_run(run_dir)
+    assert "rotation" not in signals.steps() and "straight" in signals.steps()   # its rows are left out
+    result = _cli("identify", run_dir)
+    assert result.exit_code == 2 and "rotation" in result.output and "Traceback" not in result.output
+
+
+def test_validation_refuses_a_run_without_its_lane_change(run_dir):
+    result = _cli("validate", run_dir)
+    assert result.exit_code == 2 and "lane_change" in result.output
+
+
+# --- 2. rows reversed or duplicated -------------------------------------------------------------------
+@pytest.mark.parametrize("damage", ["reverse", "duplicate"])
+def test_signals_with_rows_out_of_time_order_are_refused_with_their_line(run_dir, damage):
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    body = lines[1:]
+    block = body[100:400]
+    body = body[:100] + (block[::-1] if damage == "reverse" else block + block) + body[400:]
+    (run_dir / "signals.csv").write_text("\n".join([lines[0], *body]) + "\n")
+    with pytest.raises(RecordingError, match=r"signals.csv:\d+: time .* does not increase"):
+        read_signals(run_dir / "signals.csv")
+
+
+# --- 3. never appended; B_w from a single-axis run checked ----------------------------------------------
+def test_a_recording_is_never_appended_to(tmp_path):
+    m = Measurement(0.0, np.zeros(4), np.zeros(4), np.zeros(4), np.zeros(2))
+    with SignalWriter(tmp_path / "signals.csv") as writer:
+        writer.write("steer_left", 1, m, np.zeros(4))
+    with pytest.raises(RecordingError, match="never appended"):
+        SignalWriter(tmp_path / "signals.csv")
+
+
+def test_single_axis_into_a_directory_that_holds_one_is_refused_without_force(tmp_path):
+    (tmp_path / "single_axis").mkdir()
+    (tmp_path / "single_axis" / "signals.csv").write_text("old run\n")
+    result = _cli("single-axis", "--out", tmp_path)
+    assert result.exit_code == 2 and "--force" in result.output
+    assert (tmp_path / "single_axis" / "signals.csv").read_text() == "old run\n"
+
+
+@pytest.mark.parametrize("value", [-0.121, 0.0, float("nan")])
+def test_an_impossible_single_axis_b_w_is_refused(run_dir, value):
+    (run_dir / "single_axis.json").write_text(json.dumps({"pooled": {"B_w": {"value": value}}}))
+    with pytest.raises(RunDirectoryError, match="single_axis.json: pooled.B_w.value must be a positive"):
+        b_w_source(run_dir, DataSheet.load())
+
+
+# --- 5. user text is never console markup --------------------------------------------------------------
+def test_brackets_in_paths_and_messages_are_printed_as_written(tmp_path):
+    weird = tmp_path / "[/x]" / "[bold]run"
+    result = _cli("identify", weird)
+    assert result.exit_code == 2 and "[/x]/[bold]run" in result.output.replace("\n", "")
+    effects = tmp_path / "e.toml"
+    effects.write_text("[e]\nx = 1\n")
+    result = _cli("campaign", "--out", tmp_path / "out", "--effects", effects)
+    assert result.exit_code == 2 and "[e]: unknown effect" in result.output.replace("\n", "")
+
+
+# --- 6. descriptions and data sheets ---------------------------------------------------------------------
+@pytest.mark.parametrize("section, key, value, message", [
+    ("truth", "C_ch", "inf", "must be finite"),
+    ("truth", "m_ch", "nan", "must be finite"),
+    ("body", "steering_unit_mass", "-5.0", "must be >= 0"),
+    ("noise", "torque_measurement", "-0.01", "must be >= 0"),
+])
+def test_vehicle_descriptions_refuse_non_finite_and_unphysical_values(tmp_path, section, key, value, message):
+    text = PROTOTYPE.read_text()
+    lines, inside = [], False
+    for line in text.splitlines():
+        if line.startswith("["):
+            inside = line.strip() == f"[{section}]"
+        if inside and line.split("=")[0].strip() == key:
+            line = f"{key} = {value}"
+        lines.append(line)
+    path = tmp_path / "vehicle.toml"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DescriptionError, match=message):
+        VehicleDescription.load(path)
+
+
+def test_a_data_sheet_refuses_a_cycle_time_no_can_bus_can_serve():
+    text = (Path(__file__).resolve().parents[1] / "qomni" / "data" / "prototype_datasheet.toml").read_text()
+    with pytest.raises(DataSheetError, match=r"\[drive\] key 'cycle_time' must be within"):
+        DataSheet.loads(text.replace("cycle_time = 0.002", "cycle_time = 1e-9"), "sheet.toml")
+
+
+# --- 7. ordinary mistakes: no traceback -----------------------------------------------------------------
+def test_a_truncated_identification_is_a_clear_error(run_dir):
+    text = (run_dir / "identification.json").read_text()
+    (run_dir / "identification.json").write_text(text[: len(text) // 2])
+    with pytest.raises(RunDirectoryError, match="identification.json: not valid JSON"):
+        load_identification(run_dir)
+    result = _cli("export-fmu", run_dir, "--out", run_dir / "x.fmu")
+    assert result.exit_code == 2 and "not valid JSON" in result.output
+
+
+def test_out_that_is_a_file_and_a_negative_seed_are_refused(tmp_path):
+    (tmp_path / "file").write_text("")
+    result = _cli("campaign", "--out", tmp_path / "file")
+    assert result.exit_code == 2 and "is a file" in result.output
+    result = _cli("campaign", "--out", tmp_path / "run", "--seed", "-1")
+    assert result.exit_code == 2 and not (tmp_path / "run").exists()
+
+
+def test_a_bad_bus_is_refused_before_anything_is_created(tmp_path):
+    result = _cli("campaign", "--out", tmp_path / "run", "--bus", "nosuchinterface")
+    assert result.exit_code == 2 and not (tmp_path / "run").exists()
+
+
+# --- 7 (hil commands) ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("option, value", [("--sync-timeout", "-1"), ("--deadline", "-1"), ("--duration", "nan")])
+def test_emulate_refuses_negative_times_before_starting(option, value):
+    result = _cli("emulate", "--bus", "virtual:x", option, value)
+    assert result.exit_code == 2 and option in result.output
+
+
+def test_emulate_checks_the_stats_directory_before_running(tmp_path):
+    result = _cli("emulate", "--bus", "virtual:x", "--duration", "0.1", "--stats", tmp_path / "no" / "s.json")
+    assert result.exit_code == 2 and "does not exist" in " ".join(result.output.split())
+
+
+def test_a_hub_on_a_port_in_use_is_a_clear_error():
+    from qomni.hil.tools.hub import Hub
+
+    with Hub(port=0) as running:
+        result = _cli("hub", "--port", running.port)
+    assert result.exit_code == 2 and "cannot listen" in result.output
+
+
+# --- 10. fault plans ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("text, message", [
+    ("[[bus_off]]\nat = nan\nduration = 0.1\n", "must be finite"),
+    ("[[power_cycle]]\nnode = 3\nat = inf\noff = 0.5\n", "must be finite"),
+    ("[latency]\nmean = 3600.0\n", "must be ≤ 1.0 s"),
+])
+def test_fault_plans_refuse_faults_that_never_fire_or_kill_the_sender(tmp_path, text, message):
+    from qomni.hil.device.faults import FaultPlan, FaultPlanError
+
+    path = tmp_path / "faults.toml"
+    path.write_text(text)
+    with pytest.raises(FaultPlanError, match=message):
+        FaultPlan.load(path)
