@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pybullet
+from qomni.emulator.bullet import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,8 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet
-from pybullet_utils.bullet_client import BulletClient
 
 from .description import VehicleDescription
 from .effects import EffectSet, Plant
@@ -27,6 +25,7 @@ from .sensors import SensorReading
 from .urdf import WHEELS, vehicle_urdf
 
 from qomni.conventions import GRAVITY
+from .bullet import bullet_client, pybullet
 SETTLE_TIME = 0.3  # s of physics run at construction so the soft contacts reach equilibrium
 LIFT_HEIGHT = 0.3  # m the lifted vehicle's wheels hang above the floor
 
@@ -97,7 +96,7 @@ class Emulator:
         self._steps = 0
         self._commanded = np.zeros(4)
         self._applied = np.zeros(4)
-        self._pb = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        self._pb = bullet_client(gui)
         self._build()
         limit = d.geometry.steering_limit
         if any(abs(a) > limit for a in initial_alpha):

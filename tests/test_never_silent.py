@@ -198,3 +198,14 @@ def test_fault_plans_refuse_faults_that_never_fire_or_kill_the_sender(tmp_path, 
     path.write_text(text)
     with pytest.raises(FaultPlanError, match=message):
         FaultPlan.load(path)
+
+
+def test_pybullet_banners_stay_off_the_console():
+    import subprocess
+    import sys
+
+    code = ("from qomni.emulator.vehicle import Emulator\n"
+            "with Emulator() as emu:\n    emu.step(0.002)\nprint('stepped')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout == "stepped\n" and "pybullet build time" not in out.stderr and "argv[0]" not in out.stderr

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import math
 
-import pybullet
 
 from .base import Effect, Param, Plant
 from .rolling_resistance import wheel_loads
+from ..bullet import pybullet
 
 LATERAL_FRICTION_SCALE = 1e-3  # PyBullet's remaining Coulomb friction along the axle
 V_MIN = 0.05  # m/s, slip-angle denominator floor at standstill (keeps the force finite and stable)
