@@ -169,7 +169,7 @@ def test_cli_reports_bad_run_directories_clearly(tmp_path):
     (tmp_path / "signals.csv").write_text("time [s]\n")
     result = runner.invoke(app, ["campaign", "--out", str(tmp_path)])
     assert result.exit_code == 2
-    assert "already holds a campaign" in " ".join(result.output.split())
+    assert "already holds signals.csv" in " ".join(result.output.split())
 
 
 class FakeVehicle:

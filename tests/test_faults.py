@@ -95,17 +95,31 @@ def test_frame_loss_rate_and_bursts():
 
 
 # ------------------------------------------------------------------------- each fault kind
-def test_frame_loss_is_detected_and_drives_stop(spec):
+def test_a_lossy_bus_is_ridden_through_holding_the_last_sample(spec):
+    """2 % of the frames lost: a real master holds a missing TPDO's last sample and goes on. A lost SYNC
+    costs the client its ``timeout`` (20 ms), within the drives' SYNC supervision (50 ms)."""
     plant = FakePlant()
     plan = FaultPlan(seed=4, frame_loss=FrameLoss(rate=0.02, start=0.1))   # lossless configuration
     with VehicleServer(plant, spec, faults=plan, sync_timeout=0.05, watchdog_period=0.005) as server:
         client = client_for(spec).connect()
+        client.timeout = 0.02
         done, error = run_until_error(client)
-        assert done >= 50 and error is not None and "no TPDO" in str(error)
-        client.stop()
-        wait_for(lambda: np.all(plant.tau == 0.0), 2.0)                    # SDO shutdown or 0x6007
-        assert all(d.state is not S.OPERATION_ENABLED for d in server.drives)
+        assert done == 400 and error is None
+        assert sum(client.missed.values()) > 0
         assert server.injector.counters.lost_rx + server.injector.counters.lost_tx > 0
+        client.stop()
+
+
+def test_a_bus_that_stays_silent_aborts_after_the_allowed_misses_and_drives_stop(spec):
+    plant = FakePlant()
+    plan = FaultPlan(seed=4, frame_loss=FrameLoss(rate=1.0, start=0.1))   # from 0.1 s nothing gets through
+    with VehicleServer(plant, spec, faults=plan, sync_timeout=0.05, watchdog_period=0.005) as server:
+        client = client_for(spec, timeout=0.05, max_missed=3).connect()
+        done, error = run_until_error(client)
+        assert error is not None and "for 4 cycle(s) in a row" in str(error)
+        client.stop()
+        wait_for(lambda: np.all(plant.tau == 0.0), 2.0)                    # 0x6007: SYNC loss stops them
+        assert all(d.state is not S.OPERATION_ENABLED for d in server.drives)
 
 
 def test_latency_and_jitter_delay_but_keep_order(spec):
@@ -128,7 +142,8 @@ def test_power_cycle_of_a_drive(spec):
     with VehicleServer(plant, spec, faults=plan) as server:
         client = client_for(spec).connect()
         done, error = run_until_error(client)
-        assert 24 <= done <= 27 and error is not None
+        # node 3 falls silent at cycle 25: its TPDOs are held for max_missed cycles, then the campaign stops
+        assert 24 + client.max_missed <= done <= 27 + client.max_missed and "node(s) 3" in str(error)
         assert plant.torque_log[26][2] == 0.0 and plant.torque_log[26][0] == pytest.approx(0.5)  # at once
         wait_for(lambda: server.drives[2].powered and server.drives[2].nmt_state == 127, 2.0)
         assert server.drives[2].state is S.SWITCH_ON_DISABLED                # rebooted with its defaults
@@ -149,7 +164,7 @@ def test_bus_off_and_sync_loss_fault_the_drives(spec, kind):
     with VehicleServer(plant, spec, faults=plan, sync_timeout=0.05, watchdog_period=0.005) as server:
         client = client_for(spec).connect()
         done, error = run_until_error(client)
-        assert 10 <= done <= 12 and "no TPDO" in str(error)
+        assert 10 <= done <= 20 and "0x8100" in str(error)                 # the real cause: SYNC loss
         wait_for(lambda: all(d.state is S.FAULT for d in server.drives), 1.0)
         assert np.all(plant.tau == 0.0)
         assert all(d.values[(0x603F, 0)] == 0x8100 for d in server.drives)
@@ -158,7 +173,7 @@ def test_bus_off_and_sync_loss_fault_the_drives(spec, kind):
             wait_for(lambda: any(code == 0x8140 for _, code, _, _ in client.emcy), 2.0)
             assert counters.bus_offs == 1 and counters.bus_off_dropped > 0
         else:
-            assert "0x8100" in str(error) and counters.sync_losses == 1 and counters.sync_dropped >= 1
+            assert counters.sync_losses == 1 and counters.sync_dropped >= 1
         client.stop()
 
 

@@ -103,7 +103,7 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
     np.testing.assert_allclose(signals.motor_position[0], reference[1][0].motor_position, atol=1e-12)
     assert loaded_meta["decoded"]["cycles"] == N_CYCLES and loaded_sheet.drive.cycle_time == T_S
     again = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out)])
-    assert again.exit_code == 2 and "exists" in again.output
+    assert again.exit_code == 2 and "--force" in again.output
     bad = CliRunner().invoke(app, ["decode", str(tmp_path / "missing.blf"), "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "does not exist" in " ".join(bad.output.split())
     assert not (tmp_path / "x").exists()

@@ -369,7 +369,10 @@ class VehicleServer:
             now = time.monotonic()
             with self._lock:
                 tripped = [node.check_timeouts(now) for node in self.nodes]
-                if any(tripped[:len(self.drives)]):
+                # A drive disabled between SYNCs (by SDO, NMT, a fault) stops its torque at once, not at a
+                # next SYNC that may never come.
+                changed = any(d.applied_torque_nm != self._torque[i] for i, d in enumerate(self.drives))
+                if any(tripped[:len(self.drives)]) or changed:
                     self._apply_drive_torques()
             if self.injector is not None:
                 self.injector.poll()

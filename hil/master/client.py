@@ -35,6 +35,7 @@ from canopen.profiles.p402 import BaseNode402, State402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ..bus import open_bus
+from ..cia import EMCY_BUS_OFF, ERROR_CODE
 from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
                    CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
                    MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
@@ -108,13 +109,16 @@ class VehicleClient:
             :mod:`qomni.hil.tools.recorder`): every frame in both directions, flushed by :meth:`stop`.
         drive_eds, encoder_eds: EDS files; their PDO mapping is written to the devices.
         configure_pdos: True: write the EDS PDO configuration by SDO; False: read the devices'.
-        timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC.
+        timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC when none has come.
+        max_missed: consecutive cycles with a TPDO missing that :meth:`exchange` rides through, holding
+            the missing TPDO's last sample (a real master's behaviour on a lossy bus); one more aborts.
         boot_timeout: s, how long :meth:`connect` waits for boot-up messages.
         enable_timeout: s, per drive, for the walk to OPERATION ENABLED.
     Attributes:
         rated_torque: (4,) N m motor side, from 0x6076 (read at connect).
         max_torque: (4,) N m motor side, from 0x6072.
         cycle: SYNCs sent since connect.
+        missed: {COB-ID: cycles} whose TPDO did not arrive and was held from the cycle before.
     Raises:
         ValueError: non-positive data-sheet numbers.
 
@@ -129,7 +133,7 @@ class VehicleClient:
                  record: str | Path | list[str | Path] | None = None,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
                  configure_pdos: bool = True, timeout: float = 0.5, boot_timeout: float = 2.0,
-                 enable_timeout: float = 1.0):
+                 enable_timeout: float = 1.0, max_missed: int = 5):
         if encoder_increments <= 0 or steering_sensor_bits <= 0 or not cycle_time > 0:
             raise ValueError("encoder_increments, steering_sensor_bits and cycle_time must be > 0")
         self.encoder_increments = int(encoder_increments)
@@ -138,6 +142,11 @@ class VehicleClient:
         self.record = None if record is None else (
             Path(record) if isinstance(record, (str, Path)) else [Path(p) for p in record])
         self.timeout = timeout
+        self.max_missed = int(max_missed)
+        self.missed: dict[int, int] = {}
+        self._consecutive_missed = 0
+        self._last_rx: dict[int, bytes] = {}
+        self._last_good = time.time()
         self.boot_timeout = boot_timeout
         self.enable_timeout = enable_timeout
         self._bus_arg = bus
@@ -206,14 +215,14 @@ class VehicleClient:
         network, self._network = self._network, None
         try:
             if network is not None and network.bus is not None and self._booted:
-                for node in self.drives:
+                for node in self.drives:                   # every drive, even after one stayed silent
                     try:
                         node.sdo[0x6071].raw = 0
                         node.sdo[0x6040].raw = _CW_SHUTDOWN
-                    except SdoCommunicationError as exc:   # no answer: do not wait for every drive
-                        logger.warning("stop: drive %d does not answer (%s); skipping the other SDOs",
-                                       node.id, exc)
-                        break
+                    except SdoCommunicationError as exc:   # no answer: the others get a short wait
+                        logger.warning("stop: drive %d does not answer (%s)", node.id, exc)
+                        for other in self.drives:
+                            other.sdo.RESPONSE_TIMEOUT = min(other.sdo.RESPONSE_TIMEOUT, 0.05)
                     except Exception as exc:               # noqa: BLE001 - keep making things safe
                         logger.warning("stop: drive %d: shutdown by SDO failed: %s", node.id, exc)
                 for node in self.drives + self.encoders:
@@ -269,12 +278,61 @@ class VehicleClient:
         send(SYNC_COB_ID, b"")
         t = self.cycle * self.cycle_time
         self.cycle += 1
-        if not self._rx_done.wait(self.timeout):
+        if not self._wait_for_tpdos():
             missing = sorted(set(self._tpdo_plan) - set(self._rx))
-            raise CommunicationError(
-                f"cycle {self.cycle - 1}: no TPDO with COB-ID {', '.join(f'0x{c:03X}' for c in missing)} "
-                f"within {self.timeout} s after SYNC{self._recent_emcy()}")
+            self._consecutive_missed += 1
+            if self._consecutive_missed > self.max_missed or not self._last_rx or self._rebooted:
+                silent = sorted({c & 0x7F for c in missing})
+                raise CommunicationError(
+                    f"cycle {self.cycle - 1}: no TPDO with COB-ID {', '.join(f'0x{c:03X}' for c in missing)} "
+                    f"(node(s) {', '.join(map(str, silent))}) for {self._consecutive_missed} cycle(s) in a row"
+                    f"{self._lost_cause()}")
+            for cob_id in missing:                       # hold the last sample, as a real master does
+                self.missed[cob_id] = self.missed.get(cob_id, 0) + 1
+                self._rx[cob_id] = self._last_rx[cob_id]
+            logger.warning("cycle %d: TPDO %s missing, last sample held (%d in a row)", self.cycle - 1,
+                           ", ".join(f"0x{c:03X}" for c in missing), self._consecutive_missed)
+        else:
+            self._consecutive_missed = 0
+            self._last_good = time.time()
+        self._last_rx.update(self._rx)
         return self._decode(t)
+
+    def _wait_for_tpdos(self) -> bool:
+        """Whether every TPDO of this SYNC arrived. Without any, wait ``timeout``; once the first has
+        come, the rest of the same SYNC get a grace period: a device sends its TPDOs of a SYNC together,
+        within its cycle, so a frame later than ten cycles (and than ``timeout``) is a lost one."""
+        grace = min(10 * self.cycle_time, self.timeout)
+        deadline = time.monotonic() + self.timeout
+        while not self._rx:
+            if self._rx_done.wait(min(0.01, self.timeout)) or time.monotonic() > deadline:
+                return self._rx_done.is_set()
+        return self._rx_done.wait(grace)
+
+    def _error_code(self, node_id: int) -> str:
+        """`` (error code 0x….)`` of a drive's 0x603F, read by SDO as a master does when a drive leaves
+        OPERATION ENABLED; '' if it does not answer."""
+        node = self.drives[DRIVE_NODE_IDS.index(node_id)]
+        timeout, node.sdo.RESPONSE_TIMEOUT = node.sdo.RESPONSE_TIMEOUT, min(node.sdo.RESPONSE_TIMEOUT, 0.1)
+        try:
+            code = int(node.sdo[ERROR_CODE].raw)
+        except Exception:                                 # noqa: BLE001 - the report must not fail
+            return ""
+        finally:
+            node.sdo.RESPONSE_TIMEOUT = timeout
+        return f" (error code 0x{code:04X}{' bus-off' if code == EMCY_BUS_OFF else ''})" if code else ""
+
+    def _lost_cause(self) -> str:
+        """Why TPDOs stopped, where the bus tells: a node's boot-up (power loss or reset) or EMCY since the
+        last complete cycle (bus-off 0x8140 named as such); '' when the bus does not say."""
+        if self._rebooted:
+            return (f"; node(s) {sorted(set(self._rebooted))} sent a boot-up message (power loss or reset): "
+                    "their configuration is gone")
+        since = [(n, c) for n, c, _, t in self.emcy if c and t >= self._last_good - 0.01]
+        if not since:
+            return ""
+        codes = ", ".join(f"node {n}: 0x{c:04X}{' (bus-off)' if c == EMCY_BUS_OFF else ''}" for n, c in since[-12:])
+        return f"; EMCY since the last complete cycle: {codes}"
 
     def enable(self) -> None:
         """Walk every drive to OPERATION ENABLED by SDO (controlword 0x6040, statusword 0x6041), with a
@@ -504,8 +562,8 @@ class VehicleClient:
         if bad:
             raise DriveFaultError(
                 f"cycle {self.cycle - 1}: drive(s) not OPERATION ENABLED: "
-                + ", ".join(f"{n} ({WHEELS[n - 1]}) {s}" for n, s in bad.items())
-                + "; call enable() to recover", measurement, bad)
+                + ", ".join(f"{n} ({WHEELS[n - 1]}) {s}{self._error_code(n)}" for n, s in bad.items())
+                + f"{self._lost_cause()}; call enable() to recover", measurement, bad)
         return measurement
 
     # ------------------------------------------------------------- SDO

@@ -149,8 +149,8 @@ def decode(
     from qomni.ident.rundir import RunDirectoryError, completed_steps, datasheet_from_metadata, read_json
     from qomni.ident.recording import SignalWriter
 
-    prepare_out(out, (SIGNALS, METADATA), force)
-    partial = out / f".{SIGNALS}.partial"
+    if not log.is_file():
+        fail(f"log file {log} does not exist")
     meta: dict = {}
     try:
         if metadata is not None:
@@ -162,6 +162,8 @@ def decode(
     except (OSError, ValueError, DataSheetError, RunDirectoryError) as exc:
         fail(f"{metadata or datasheet}: {exc}")
     segments = [s for s in meta.get("segments", []) if {"name", "k", "t_start", "t_end"} <= set(s)]
+    prepare_out(out, (SIGNALS, METADATA), force)
+    partial = out / f".{SIGNALS}.partial"
     drive = sheet.drive
     report = DecodeReport()
     try:
