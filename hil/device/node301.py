@@ -41,8 +41,9 @@ from canopen import objectdictionary as od
 from canopen.nmt import NMT_STATES
 from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_VALUE_HIGH, ABORT_VALUE_LOW, ABORT_VALUE_RANGE,
-                   ABORT_WRITE_ONLY, CONSUMER_HEARTBEAT_TIME, INITIALISING, PRE_DEFINED_ERROR_FIELD)
+from ..cia import (ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_SUBINDEX_MISSING, ABORT_VALUE_HIGH, ABORT_VALUE_LOW,
+                   ABORT_VALUE_RANGE, ABORT_WRITE_ONLY, CONSUMER_HEARTBEAT_TIME, INITIALISING,
+                   PRE_DEFINED_ERROR_FIELD)
 from .emcy import EmcyService
 from .nmt import NmtService, NodeNmt
 from .pdo import PdoService, _Pdo
@@ -131,6 +132,15 @@ class Node301(NmtService, PdoService, SupervisionService, EmcyService, canopen.L
             self._defaults[(index, subindex)] = value
 
     # ------------------------------------------------------- object access
+    def _find_object(self, index: int, subindex: int):
+        """The object (index, subindex) as an SDO server looks it up (CiA 301 §7.2.4.3.17): a missing index
+        aborts 0x06020000, a sub-index other than 0 of a simple variable (VAR) 0x06090011 like a missing
+        sub-index of a record or array (canopen's LocalNode would answer with the variable itself)."""
+        obj = super()._find_object(index, subindex)
+        if isinstance(self.object_dictionary[index], od.ODVariable) and subindex != 0:
+            raise SdoAbortedError(ABORT_SUBINDEX_MISSING)
+        return obj
+
     def get_data(self, index: int, subindex: int, check_readable: bool = False) -> bytes:
         """Encoded value of an object (SDO upload). Raises SdoAbortedError like a device would."""
         with self.lock:

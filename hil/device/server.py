@@ -117,6 +117,21 @@ class TimingStats:
         return text
 
 
+class DeviceListener(can.Listener):
+    """What reaches the devices from the bus: 11-bit data frames only. The pre-defined connection set of
+    CiA 301 (§7.3.3) is 11-bit, so a 29-bit frame with the same number (a 29-bit 0x80, 0x601) is another
+    message, not a SYNC or an SDO request; remote (RTR) requests are answered by no object of these
+    devices (CiA 301 advises against RTR). canopen's own listener passes every frame on by its number."""
+
+    def __init__(self, network: canopen.Network):
+        self.network = network
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+
+
 class VehicleServer:
     """Hosts a plant on a CAN bus as the vehicle's CANopen devices.
 
@@ -200,6 +215,7 @@ class VehicleServer:
             self.injector.on_bus_off_recovered = self._bus_off_recovered
             bus = FaultyBus(bus, self.injector, own_bus=self._own_bus)
         network = canopen.Network(bus)
+        network.listeners = [DeviceListener(network)]
         network.NOTIFIER_CYCLE = 0.05      # short receive timeout: stop() returns quickly
         for node in self.nodes:
             network.add_node(node)

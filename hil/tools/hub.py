@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import re
 import socket
 import threading
 import time
@@ -143,15 +144,19 @@ class Hub:
             forwarded to that client (frames meanwhile are queued, not lost). python-can's client reads
             the ``< ok >`` with one ``recv`` and compares it exactly, so a frame arriving in the same
             ``recv`` would break its handshake.
+        open_timeout: s a connection may take to open a channel; one that has not is closed, so idle
+            connections cannot hold the hub's places.
     Attributes:
         frames: frames accepted from clients so far.
         dropped: frames not delivered to some client because its queue was full.
+        remote_dropped: remote (RTR) requests not forwarded: socketcand's ``< frame >`` has no RTR flag, and
+            the CANopen devices here answer none (CiA 301 advises against RTR).
     Raises:
         ValueError: non-loopback host, port out of range, ``max_clients`` < 1 or ``max_buffer`` < 256.
     """
 
     def __init__(self, port: int = 0, host: str = LOOPBACK, *, max_clients: int = 16,
-                 max_buffer: int = 1 << 20, handshake_grace: float = 0.05):
+                 max_buffer: int = 1 << 20, handshake_grace: float = 0.05, open_timeout: float = 5.0):
         self._host = _check_host(host)
         self._requested_port = _check_port(port, allow_zero=True)
         if max_clients < 1 or max_buffer < _MAX_ELEMENT:
@@ -159,8 +164,10 @@ class Hub:
         self.max_clients = int(max_clients)
         self.max_buffer = int(max_buffer)
         self.handshake_grace = float(handshake_grace)
+        self.open_timeout = float(open_timeout)
         self.frames = 0
         self.dropped = 0
+        self.remote_dropped = 0
         self._port: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: asyncio.base_events.Server | None = None
@@ -262,6 +269,7 @@ class Hub:
         client = _Client(writer, peer)
         self._clients.add(client)
         logger.debug("hub: %s connected", peer)
+        unopened = self._loop.call_later(self.open_timeout, self._close_unopened, client)
         try:
             writer.write(b"< hi >")
             buffer = b""
@@ -287,9 +295,15 @@ class Hub:
         except (ConnectionError, OSError):
             pass
         finally:
+            unopened.cancel()
             self._clients.discard(client)
             writer.close()
             logger.debug("hub: %s disconnected", peer)
+
+    def _close_unopened(self, client: _Client) -> None:
+        if client.channel is None and client in self._clients:
+            logger.warning("hub: %s opened no channel within %g s, closing", client.peer, self.open_timeout)
+            client.writer.transport.abort()
 
     def _handle(self, client: _Client, element: bytes) -> None:
         def reply(text: bytes) -> None:
@@ -336,7 +350,11 @@ class Hub:
             reply(b"< ok >")
         elif command == "send":
             frame = _parse_send(args)
-            if isinstance(frame, str):
+            if frame is _REMOTE:
+                self.remote_dropped += 1             # no answer: python-can reads "< error >" as a frame
+                if self.remote_dropped == 1:
+                    logger.warning("hub: %s sent a remote (RTR) request; RTR is not forwarded", client.peer)
+            elif isinstance(frame, str):
                 reply(f"< error {frame} >".encode("ascii"))
             else:
                 self._broadcast(client, *frame)
@@ -369,19 +387,26 @@ class Hub:
                 client.writer.write(line)
 
 
+#: What :func:`_parse_send` returns for a remote request (LEN > 0 without data: python-can's client sends
+#: an RTR frame so).
+_REMOTE = "remote"
+_HEX = re.compile(r"[0-9A-Fa-f]{1,8}")
+
+
 def _parse_send(args: list[str]) -> tuple[int, bool, bytes] | str:
-    """``ID LEN B0 ...`` → (id, extended, data) or an error text."""
+    """``ID LEN B0 ...`` → (id, extended, data), :data:`_REMOTE`, or an error text. IDs are unsigned
+    hexadecimal: up to 3 digits an 11-bit identifier (≤ 0x7FF), more a 29-bit one (≤ 0x1FFFFFFF)."""
     if len(args) < 2:
         return "usage: send ID LEN DATA"
-    try:
-        can_id = int(args[0], 16)
-        length = int(args[1], 16)
-        data = bytes(int(b, 16) for b in args[2:])
-    except ValueError:
-        return "send: ID, LEN and data must be hexadecimal bytes"
+    if not all(_HEX.fullmatch(a) for a in args) or any(len(b) > 2 for b in args[2:]) or len(args[1]) > 1:
+        return "send: ID, LEN and data must be unsigned hexadecimal (data bytes of two digits)"
+    can_id, length = int(args[0], 16), int(args[1], 16)
+    data = bytes(int(b, 16) for b in args[2:])
     extended = len(args[0]) > 3
     if can_id > (0x1FFFFFFF if extended else 0x7FF):
         return "send: ID out of range"
+    if 0 < length <= 8 and not data:
+        return _REMOTE
     if not 0 <= length <= 8 or len(data) != length:
         return "send: LEN must be 0..8 and equal the number of data bytes"
     return can_id, extended, data
