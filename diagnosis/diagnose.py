@@ -112,6 +112,8 @@ class Diagnosis:
     holdout_rms: dict = field(default_factory=dict)
     #: channel → held-out RMS of the model as identified (base parameters unchanged), same unit
     model_holdout_rms: dict = field(default_factory=dict)
+    #: the diagnosed run's status (metadata.json) and the steps whose rows were used: only completed ones
+    data_run: dict = field(default_factory=dict)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -197,7 +199,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
     """
-    signals, sheet, _ = load_run(data_dir)
+    signals, sheet, meta = load_run(data_dir)
+    data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps()}
     lag = correlation_lag(sheet.drive.cycle_time)
     chans = channels(signals, sheet, model)
     hold = None
@@ -275,7 +278,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
                      chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
                      evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
-                                         cache))
+                                            cache), data_run)
 
 
 def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):

@@ -213,8 +213,10 @@ class Campaign:
                                          "t_end": measurement.time})
                 self._write_metadata(meta)
             meta["status"] = "complete"
+            meta["missed_samples"] = _missed(self.vehicle)
         except BaseException as exc:  # noqa: BLE001 - stop the wheels whatever happened
             meta["status"] = f"aborted: {type(exc).__name__}: {exc}"
+            meta["missed_samples"] = _missed(self.vehicle)
             self._safe_stop()
             writer.close()
             self._write_metadata(meta)
@@ -252,6 +254,12 @@ class Campaign:
 
     def _write_metadata(self, meta: dict) -> None:
         write_json(self.run_dir / METADATA, meta)
+
+
+def _missed(vehicle) -> dict:
+    """Samples the vehicle link held because their TPDO did not come: {"0x183": cycles, …} (a CAN client's
+    ``missed``; empty for links without one)."""
+    return {f"0x{cob:03X}": n for cob, n in sorted(getattr(vehicle, "missed", {}).items())}
 
 
 def _cycles(step: ExcitationStep, cycle_time: float) -> int:

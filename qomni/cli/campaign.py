@@ -75,7 +75,11 @@ def campaign(
     from qomni.hil.tools.dbc import write_dbc
 
     write_dbc(out / BUS_DBC)  # decodes bus.blf in CANoe, cantools, candump-based tools
-    rect = read_json(out / METADATA)["occupied_rectangle"]
+    meta = read_json(out / METADATA)
+    rect = meta["occupied_rectangle"]
+    if meta.get("missed_samples"):
+        console.print("TPDOs missed and held from the cycle before: " + ", ".join(
+            f"{cob} {n}×" for cob, n in meta["missed_samples"].items()))
     console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
                   f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
     _identify_and_report(out)
