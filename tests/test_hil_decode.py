@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from qomni.cli import app
 from qomni.hil.master.client import VehicleClient
 from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
 from qomni.hil.tools.recorder import replay
@@ -128,3 +129,38 @@ def test_replay_of_the_master_frames_reproduces_the_run(session):
     assert sent > N_CYCLES * 5
     assert server.cycles == N_CYCLES
     np.testing.assert_array_equal(plant.theta, original.theta)
+
+
+def test_a_bad_candump_line_names_the_file_and_frame(session, tmp_path):
+    _, logs, _, _ = session
+    lines = logs[1].read_text().splitlines()
+    bad = tmp_path / "bad.log"
+    bad.write_text("\n".join([*lines[:50], "(17000 garbage line", *lines[50:]]) + "\n")
+    with pytest.raises(DecodeError, match=r"bad.log: cannot read frame 51 \(after 50 good frames\)"):
+        list(decode_log(bad, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S))
+
+
+def test_a_cut_blf_decodes_its_first_part_with_a_warning(session, tmp_path):
+    _, logs, _, _ = session
+    data = logs[0].read_bytes()
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes(data[: len(data) // 2])
+    report = DecodeReport()
+    cycles = list(decode_log(cut, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                             report=report))
+    assert len(cycles) < N_CYCLES and any("the file is cut" in w for w in report.warnings)
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["decode", str(cut), "--out", str(out)])
+    assert result.exit_code == 0 and "the file is cut" in " ".join(result.output.split())
+    assert json.loads((out / "metadata.json").read_text())["decoded"]["warnings"]
+
+
+def test_a_failed_decode_leaves_nothing_that_blocks_its_rerun(session, tmp_path):
+    _, logs, _, _ = session
+    bad = tmp_path / "bad.log"
+    bad.write_text("(17000 garbage line\n")
+    out = tmp_path / "run"
+    failed = CliRunner().invoke(app, ["decode", str(bad), "--out", str(out)])
+    assert failed.exit_code == 2 and "bad.log" in failed.output
+    again = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out)])
+    assert again.exit_code == 0, again.output

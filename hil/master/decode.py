@@ -298,14 +298,17 @@ def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport) -
     """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``."""
     seen: dict[int, int] = {}
     try:
-        for msg in can.LogReader(str(path)):
-            cob = msg.arbitration_id
-            if 0x581 <= cob <= 0x584 and len(msg.data) == 8 and not msg.is_extended_id:
-                command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
-                if command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
-                    seen[cob - 0x580] = value
+        reader = can.LogReader(str(path))
     except ValueError as exc:
         raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
+    except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
+        raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+    for msg in _frames(reader, path):
+        cob = msg.arbitration_id
+        if 0x581 <= cob <= 0x584 and len(msg.data) == 8 and not msg.is_extended_id:
+            command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
+            if command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
+                seen[cob - 0x580] = value
     out, sources = np.zeros(4), set()
     fallback = None if given is None else np.broadcast_to(np.asarray(given, dtype=float), (4,))
     for i, node_id in enumerate(DRIVE_NODE_IDS):
