@@ -1,15 +1,21 @@
 """A second importer: the feed-forward and the plant FMU (FMI 2.0 and 3.0) simulated in ecospy (Vico /
 libecos, C++ FMI host) give the same results as in fmpy, input sequence for input sequence."""
+import ctypes
 import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytest.importorskip("fmpy")
-try:
-    import ecospy
-except (ImportError, OSError) as exc:  # OSError: libtbb.so.12 missing (Debian package libtbb12)
-    pytest.skip(f"ecospy unavailable: {exc}", allow_module_level=True)
+import fmpy  # noqa: F401  (the test extra installs it)
+
+# ecospy's libecos needs libtbb.so.12: the Debian package libtbb12 where installed, else the one the test
+# extra's ``tbb`` wheel puts into <prefix>/lib, loaded globally before ecospy so the linker finds it.
+_TBB = Path(sys.prefix) / "lib" / "libtbb.so.12"
+if _TBB.is_file():
+    ctypes.CDLL(str(_TBB), mode=ctypes.RTLD_GLOBAL)
+import ecospy  # noqa: E402
 
 from qomni.fmu.cosim import MOTOR_TORQUE, REAL_OUTPUTS, FmuSlave  # noqa: E402
 from qomni.fmu.export import export_feedforward_fmu, export_plant_fmu  # noqa: E402
