@@ -46,8 +46,10 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
     server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT, faults=faults)
     try:
         server.start()
-        with VehicleClient.from_drive(description.drive, bus, record=record,
-                                      timeout=LOCKSTEP_SYNC_TIMEOUT) as client:
+        # Without a fault plan no frame is lost: the client waits for every TPDO (deterministic lock-step).
+        grace = LOCKSTEP_SYNC_TIMEOUT if faults is None else None
+        with VehicleClient.from_drive(description.drive, bus, record=record, timeout=LOCKSTEP_SYNC_TIMEOUT,
+                                      tpdo_grace=grace) as client:
             yield client
     finally:
         server.stop()

@@ -112,6 +112,9 @@ class VehicleClient:
         timeout: s, how long :meth:`exchange` waits for the TPDOs of one SYNC when none has come.
         max_missed: consecutive cycles with a TPDO missing that :meth:`exchange` rides through, holding
             the missing TPDO's last sample (a real master's behaviour on a lossy bus); one more aborts.
+        tpdo_grace: s a SYNC's other TPDOs get once its first has come (default ten cycles, at most
+            ``timeout``); a lock-step host that never loses frames passes ``timeout``, so a loaded machine
+            cannot turn a late frame into a held sample.
         boot_timeout: s, how long :meth:`connect` waits for boot-up messages.
         enable_timeout: s, per drive, for the walk to OPERATION ENABLED.
     Attributes:
@@ -133,7 +136,7 @@ class VehicleClient:
                  record: str | Path | list[str | Path] | None = None,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
                  configure_pdos: bool = True, timeout: float = 0.5, boot_timeout: float = 2.0,
-                 enable_timeout: float = 1.0, max_missed: int = 5):
+                 enable_timeout: float = 1.0, max_missed: int = 5, tpdo_grace: float | None = None):
         if encoder_increments <= 0 or steering_sensor_bits <= 0 or not cycle_time > 0:
             raise ValueError("encoder_increments, steering_sensor_bits and cycle_time must be > 0")
         self.encoder_increments = int(encoder_increments)
@@ -143,6 +146,7 @@ class VehicleClient:
             Path(record) if isinstance(record, (str, Path)) else [Path(p) for p in record])
         self.timeout = timeout
         self.max_missed = int(max_missed)
+        self.tpdo_grace = min(10 * cycle_time, timeout) if tpdo_grace is None else float(tpdo_grace)
         self.missed: dict[int, int] = {}
         self._consecutive_missed = 0
         self._last_rx: dict[int, bytes] = {}
@@ -300,14 +304,13 @@ class VehicleClient:
 
     def _wait_for_tpdos(self) -> bool:
         """Whether every TPDO of this SYNC arrived. Without any, wait ``timeout``; once the first has
-        come, the rest of the same SYNC get a grace period: a device sends its TPDOs of a SYNC together,
-        within its cycle, so a frame later than ten cycles (and than ``timeout``) is a lost one."""
-        grace = min(10 * self.cycle_time, self.timeout)
+        come, the rest of the same SYNC get ``tpdo_grace``: a device sends its TPDOs of a SYNC together,
+        within its cycle, so a frame later than that is a lost one."""
         deadline = time.monotonic() + self.timeout
         while not self._rx:
             if self._rx_done.wait(min(0.01, self.timeout)) or time.monotonic() > deadline:
                 return self._rx_done.is_set()
-        return self._rx_done.wait(grace)
+        return self._rx_done.wait(self.tpdo_grace)
 
     def _error_code(self, node_id: int) -> str:
         """`` (error code 0x….)`` of a drive's 0x603F, read by SDO as a master does when a drive leaves
