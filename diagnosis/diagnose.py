@@ -114,6 +114,8 @@ class Diagnosis:
     model_holdout_rms: dict = field(default_factory=dict)
     #: the diagnosed run's status (metadata.json) and the steps whose rows were used: only completed ones
     data_run: dict = field(default_factory=dict)
+    #: the reference run each hypothesis is tested beyond (its directory), or "none"
+    reference: str = "none"
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -278,7 +280,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
                      chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
                      evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
-                                            cache), data_run)
+                                            cache), data_run,
+                     str(reference_dir) if ref_problem is not None else "none")
 
 
 def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):
@@ -334,11 +337,13 @@ def _simulation(problem: Problem, model: IdentificationResult, base: Fit,
 
 
 def diagnose_paths(model_path: str | Path, data_dir: str | Path, holdout_dir: str | Path | None = None,
-                   **kwargs) -> Diagnosis:
-    """:func:`diagnose` with the model read from ``identification.json`` (file or run directory); the
-    run directory holding it, if it holds a recording, is the reference run."""
+                   reference_dir: str | Path | None = None, **kwargs) -> Diagnosis:
+    """:func:`diagnose` with the model read from ``identification.json`` (file or run directory). The
+    reference run is ``reference_dir`` if given (e.g. the model's digital twin's campaign), else the run
+    directory holding the model, if it holds a recording."""
     path = Path(model_path)
-    run = path if path.is_dir() else path.parent
-    reference = run if (run / "signals.csv").exists() else None
-    return diagnose(load_identification(model_path), data_dir, holdout_dir, reference_dir=reference,
+    if reference_dir is None:
+        run = path if path.is_dir() else path.parent
+        reference_dir = run if (run / "signals.csv").exists() else None
+    return diagnose(load_identification(model_path), data_dir, holdout_dir, reference_dir=reference_dir,
                     model_source=str(model_path), **kwargs)

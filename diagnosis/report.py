@@ -109,6 +109,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "model": d.model_source,
         "data": d.data_source,
         "data_run": d.data_run,
+        "reference": d.reference,
         "base_parameter_shift": d.base_delta_p,
         "model_holdout_rms": d.model_holdout_rms,
         "base_fit_holdout_rms": d.holdout_rms,

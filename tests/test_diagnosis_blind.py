@@ -120,3 +120,21 @@ def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
     assert out.returncode == 2
     assert "does not exist" in " ".join((out.stdout + out.stderr).split())  # rich wraps lines
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_not_there(suite):
+    """The real user's mode: no ideal reference, only the run, the model identified from it and the model's
+    digital twin, whose campaign (same settings) the CLI runs and keeps next to the report."""
+    work, _ = suite
+    run, out = work / "ideal", work / "ideal" / "twin_gap"
+    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model", str(run / "identification.json"),
+                             "--data", str(run), "--out", str(out), "--no-simulate"],
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    gap = json.loads((out / "gap.json").read_text())
+    assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
+    assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
+    twin_meta = json.loads((out / "twin_reference" / "metadata.json").read_text())
+    data_meta = json.loads((run / "metadata.json").read_text())
+    assert twin_meta["settings"] == data_meta["settings"] and twin_meta["status"] == "complete"

@@ -9,7 +9,7 @@ from rich.table import Table
 from rich.text import Text
 
 from .app import app
-from .console import console, guarded
+from .console import console, fail, guarded, run_with_progress
 
 
 @app.command()
@@ -20,13 +20,22 @@ def diagnose(
                                            "data (default: alternate 1 s windows of --data)."),
     out: Path = typer.Option(..., "--out", help="Directory for gap.json and report.html."),
     simulate: bool = typer.Option(True, help="Also compare 1 s forward simulations."),
+    reference: Optional[Path] = typer.Option(
+        None, "--reference", help="Reference run the hypotheses are tested beyond (e.g. the run the model "
+                                  "was identified on). Default: the model's digital twin, run with the "
+                                  "data's campaign settings and kept in OUT/twin_reference."),
+    datasheet: Optional[Path] = typer.Option(None, help="Data sheet of the twin (default: the data's)."),
 ):
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from qomni.diagnosis.diagnose import diagnose_paths
     from qomni.diagnosis.report import write_report
 
-    d = guarded(lambda: diagnose_paths(model, data, holdout, simulate=simulate))
+    if reference is None:
+        reference = _twin_reference(model, data, out / "twin_reference", datasheet)
+    elif not reference.is_dir():
+        fail(f"--reference {reference} is not a run directory")
+    d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference, simulate=simulate))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
     for col in ("#", "Effect", "Magnitude", "95 % CI", "p", "Held-out shrink", "beyond base fit", "Channel",
                 "Significant"):
@@ -41,5 +50,38 @@ def diagnose(
     console.print(table)
     console.print(Text.assemble(("verdict:", "bold"), f" {d.verdict}"))
     json_path, html_path = write_report(d, out)
+    console.print(f"reference run: {d.reference}")
     console.print(f"written {json_path} and {html_path}")
+
+
+def _twin_reference(model: Path, data: Path, cache: Path, datasheet: Optional[Path]) -> Path:
+    """The model's digital twin's campaign (qomni.twin), run once and kept in ``cache``."""
+    from qomni.datasheet import DataSheetError
+    from qomni.ident.campaign import CampaignAborted
+    from qomni.twin import TwinError, twin_reference
+
+    try:
+        return guarded(lambda: run_with_progress(
+            "twin campaign", lambda cb: twin_reference(model, data, cache, datasheet, on_progress=cb)))
+    except (TwinError, DataSheetError, CampaignAborted, TypeError) as exc:
+        fail(f"cannot run the model's digital twin: {exc}")
+
+
+@app.command()
+def twin(
+    identification: Path = typer.Argument(..., help="identification.json (or its run directory)."),
+    out: Path = typer.Option(..., "--out", help="Vehicle description TOML to write."),
+    datasheet: Optional[Path] = typer.Option(None, help="Data sheet (default: the run's metadata.json)."),
+):
+    """Write the digital twin of an identified vehicle: an emulator vehicle description whose truth is the
+    identified parameters; run it with
+    'qomni campaign --vehicle OUT --effects emulator/data/effects/ideal.toml'."""
+    from qomni.datasheet import DataSheetError
+    from qomni.twin import TwinError, write_twin
+
+    try:
+        path = guarded(lambda: write_twin(identification, out, datasheet))
+    except (TwinError, DataSheetError, OSError) as exc:
+        fail(str(exc))
+    console.print(f"written {path}")
 

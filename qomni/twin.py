@@ -1,0 +1,152 @@
+"""The digital twin of an identified vehicle: the emulator configured with the identified parameters.
+
+The sim-to-real gap is the difference between a simulator and the vehicle. The twin is the simulator a
+user of a real vehicle always has: the paper's model as a physical vehicle, so its campaign shows what
+the model's structure (tanh friction against real stick-slip, the filter, the solver) leaves in the data
+when nothing is missing. The diagnosis uses the twin's campaign as its reference run.
+
+What the twin is made of:
+
+* ``[truth]``: the identified p (C_l … d_cw) and B_w as the identification used it;
+* ``[geometry]``, ``[drive]``, ``[nominal]``: the data sheet (the run's ``metadata.json``, or a given one);
+* the bodies as the paper idealises them: the lumped inertias and masses are the truth, the steering
+  units and wheels carry negligible mass (the emulator's ideal vehicle, ``EffectSet.ideal()``), so the
+  twin has no unmodelled effect by construction;
+* ``[body]``'s contact (tyre friction, contact stiffness and damping, chassis height, wheel transverse
+  inertia) and ``[noise]``: the built-in prototype's, since neither a data sheet nor an identification
+  gives them.
+
+Composition root: it imports the emulator and the identification; ``ident``, ``fmu`` and ``diagnosis``
+never do.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from qomni.conventions import PARAMETER_NAMES
+from qomni.datasheet import DataSheet
+from qomni.emulator.description import Truth, VehicleDescription
+from qomni.emulator.effects import EffectSet
+from qomni.ident.result import IdentificationResult
+from qomni.ident.rundir import METADATA, SIGNALS, datasheet_from_metadata, load_identification, read_json
+
+#: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
+TWIN_REFERENCE = "twin_reference"
+
+
+class TwinError(ValueError):
+    """The twin cannot be built: an identified parameter is not physical for the emulator (names it)."""
+
+
+def twin_description(result: IdentificationResult, sheet: DataSheet, source: str = "twin") -> VehicleDescription:
+    """The emulator description whose truth is ``result`` on ``sheet``'s vehicle (module docstring).
+
+    Raises:
+        TwinError: an identified inertia or mass is not positive, or a friction coefficient negative.
+    """
+    prototype = VehicleDescription.load()
+    truth = Truth(**{name: float(value) for name, value in zip(PARAMETER_NAMES, result.p)})
+    for name in ("C_l", "C_r", "m_ch", "C_ch", "B_w"):
+        if not getattr(truth, name) > 0:
+            raise TwinError(f"{source}: identified {name} = {getattr(truth, name)} is not a positive inertia")
+    for name in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw"):
+        if getattr(truth, name) < 0:
+            raise TwinError(f"{source}: identified {name} = {getattr(truth, name)} is a negative friction")
+    body = replace(prototype.body, wheel_transverse_inertia=max(prototype.body.wheel_transverse_inertia,
+                                                                truth.B_w / 2))
+    description = replace(prototype, datasheet=replace(sheet, name=f"twin of {sheet.name}"), truth=truth,
+                          body=body, source=source)
+    description._check()
+    return description
+
+
+def twin_toml(description: VehicleDescription) -> str:
+    """The description as a vehicle TOML file (``emulator/data/prototype.toml``'s format)."""
+    sheet = description.datasheet
+    sections = {"geometry": asdict(sheet.geometry), "drive": asdict(sheet.drive),
+                "nominal": asdict(sheet.nominal), "truth": asdict(description.truth),
+                "body": asdict(description.body), "noise": asdict(description.noise)}
+    lines = ["# A digital twin: the emulator configured with identified parameters (qomni twin).",
+             "# [truth] is the identification; [geometry], [drive], [nominal] the data sheet; the bodies are",
+             "# the paper's idealisation (run it with the ideal effects set); [body] contact and [noise] are",
+             "# the built-in prototype's.", "", "[vehicle]", f'name = "{sheet.name}"']
+    for name, table in sections.items():
+        lines += ["", f"[{name}]", *(f"{key} = {value!r}" for key, value in table.items())]
+    text = "\n".join(lines) + "\n"
+    tomllib.loads(text)                                   # written as it will be read
+    return text
+
+
+def write_twin(identification: str | Path, out: str | Path, datasheet: str | Path | None = None) -> Path:
+    """Write the twin of ``identification`` (a file or its run directory) to ``out`` (a vehicle TOML).
+
+    The data sheet is ``datasheet`` if given, else the one in the identification's run directory's
+    metadata.json.
+
+    Raises:
+        RunDirectoryError: identification.json or metadata.json missing or invalid.
+        DataSheetError: the given data sheet is invalid. TwinError: a parameter is not physical.
+    """
+    result = load_identification(identification)
+    sheet = _sheet_for(Path(identification), datasheet)
+    text = twin_toml(twin_description(result, sheet, str(identification)))
+    out = Path(out)
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(out)
+    return out
+
+
+def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
+    if datasheet is not None:
+        return DataSheet.load(datasheet)
+    run = identification if identification.is_dir() else identification.parent
+    return datasheet_from_metadata(read_json(run / METADATA), str(run / METADATA))
+
+
+def twin_reference(identification: str | Path, data_dir: str | Path, cache: str | Path,
+                   datasheet: str | Path | None = None, on_progress=None) -> Path:
+    """The twin's campaign with the settings, excitation and seed recorded in ``data_dir/metadata.json``,
+    run in ``cache`` or found there from an earlier diagnosis of the same model and settings.
+
+    Returns:
+        the run directory of the twin's campaign (signals.csv, metadata.json).
+    Raises:
+        RunDirectoryError, TwinError, CampaignAborted: as the steps they come from.
+    """
+    from qomni.embedded import embedded_vehicle
+    from qomni.ident.campaign import Campaign, CampaignSettings
+
+    data_dir, cache = Path(data_dir), Path(cache)
+    meta = read_json(data_dir / METADATA)
+    settings = CampaignSettings(**meta.get("settings", {}))
+    sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
+        datasheet_from_metadata(meta, str(data_dir / METADATA))
+    result = load_identification(identification)
+    description = twin_description(result, sheet, str(identification))
+    key = {"twin": twin_toml(description), "settings": meta.get("settings", {})}
+    stamp = cache / "twin.json"
+    if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
+        done = read_json(cache / METADATA)
+        if done.get("status") == "complete":
+            return cache
+    if cache.exists():
+        import shutil
+
+        shutil.rmtree(cache)
+    cache.mkdir(parents=True)
+    (cache / "twin.toml").write_text(key["twin"])
+    run = Campaign(sheet, cache, settings, source=f"digital twin of {identification}")
+    if on_progress is not None:
+        run.on_progress = on_progress
+    with embedded_vehicle(description, seed=settings.seed, effects=EffectSet.ideal()) as link:
+        run.run(link)
+    from qomni.ident.rundir import write_json
+
+    write_json(stamp, key)
+    return cache
+
+
+__all__ = ["TWIN_REFERENCE", "TwinError", "twin_description", "twin_reference", "twin_toml", "write_twin"]

@@ -1,0 +1,45 @@
+"""The digital twin (qomni.twin): the emulator configured with an identification, on the data sheet's
+vehicle, with the paper's idealised bodies; written as a vehicle file the emulator reads back."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from doubles import identification
+from qomni.conventions import PARAMETER_NAMES
+from qomni.datasheet import DataSheet
+from qomni.emulator.description import VehicleDescription
+from qomni.emulator.effects import EffectSet
+from qomni.emulator.vehicle import Emulator
+from qomni.twin import TwinError, twin_description, twin_toml
+
+
+def test_the_twins_truth_is_the_identification_on_the_data_sheets_vehicle(tmp_path):
+    result, sheet = identification(), DataSheet.load()
+    desc = twin_description(result, sheet)
+    np.testing.assert_array_equal([getattr(desc.truth, n) for n in PARAMETER_NAMES], result.p)
+    assert desc.geometry == sheet.geometry and desc.drive == sheet.drive
+    path = tmp_path / "twin.toml"
+    path.write_text(twin_toml(desc))
+    again = VehicleDescription.load(path)
+    assert again.truth == desc.truth and again.datasheet.nominal == sheet.nominal
+    assert DataSheet.load(path).geometry == sheet.geometry            # the file is a data sheet too
+
+
+def test_the_twin_runs_as_the_ideal_vehicle_with_the_identified_mass(tmp_path):
+    desc = twin_description(identification(), DataSheet.load())
+    with Emulator(desc, effects=EffectSet.ideal(), seed=1) as emu:
+        emu.set_motor_torques(np.zeros(4))
+        emu.step(0.01)
+        assert emu.effects.names == ()
+
+
+@pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])
+def test_an_unphysical_identification_has_no_twin(name, value):
+    result = identification()
+    if name in result.values:
+        result = replace(result, values={**result.values, name: value})
+    with pytest.raises(TwinError, match=name):
+        twin_description(result, DataSheet.load())
