@@ -128,9 +128,9 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     digital twin, whose campaign (same settings) the CLI runs and keeps next to the report."""
     work, _ = suite
     run, out = work / "ideal", work / "ideal" / "twin_gap"
-    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model", str(run / "identification.json"),
-                             "--data", str(run), "--out", str(out), "--no-simulate"],
-                            capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
+                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
+                             "--no-simulate"], capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
     gap = json.loads((out / "gap.json").read_text())
     assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
