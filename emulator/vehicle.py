@@ -170,6 +170,7 @@ class Emulator:
             effect.attach(self._plant)
         self._shapers = [e for e in self._effects if e.shapes_torque()]
         self._steppers = [e for e in self._effects if e.steps()]
+        self._reporters = [e for e in self._effects if e.shapes_report()]
 
     # -- drive interface ---------------------------------------------------------------------
     @property
@@ -242,7 +243,10 @@ class Emulator:
         span = (len(history) - 1) * self.time_step
         velocity = ((position - history[0]) / span).round().astype(np.int64) if span > 0 else \
             np.zeros(4, dtype=np.int64)
-        torque = self._commanded + self._rng.normal(0.0, noise.torque_measurement, 4)
+        torque = self._commanded.copy()
+        for effect in self._reporters:
+            torque = effect.reported_torque(torque)
+        torque = torque + self._rng.normal(0.0, noise.torque_measurement, 4)
         full = 2 ** drive.steering_sensor_bits
         alpha = self._steering_angles()[[0, 2]]
         counts = np.round(alpha / (2 * math.pi) * full

@@ -153,6 +153,11 @@ class Effect:
     def before_step(self, plant: Plant) -> None:
         """Set friction limits, joint torques and external forces for the coming physics step."""
 
+    def reported_torque(self, reported: np.ndarray) -> np.ndarray:
+        """(4,) N m motor side: the torque actual (0x6077) the drives report at a SYNC, from the set-point
+        they apply from that instant."""
+        return reported
+
     # Which hooks an effect uses: the emulator calls only those every step.
     @classmethod
     def steps(cls) -> bool:
@@ -161,3 +166,7 @@ class Effect:
     @classmethod
     def shapes_torque(cls) -> bool:
         return cls.drive_torque is not Effect.drive_torque
+
+    @classmethod
+    def shapes_report(cls) -> bool:
+        return cls.reported_torque is not Effect.reported_torque
