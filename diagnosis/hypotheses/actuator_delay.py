@@ -12,22 +12,32 @@ from .base import Hypothesis, Magnitude, _ci, _input_torque, _project, _torque_o
 DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
 
 
-@_torque_only
-def _delay_columns(ch: ChannelData, cycles):
-    Bu = _input_torque(ch)
-    delayed = np.vstack([np.repeat(Bu[:1], cycles, axis=0), Bu[:-cycles]])
-    return _project(ch, Bu - delayed)[:, None]
+def shift_columns(direction: int):
+    """Columns H_kᵀB(u(t) − u(t − direction·T)) for T = ``cycles`` SYNC periods: ``direction`` +1 the
+    applied torque lags the reported one (a delay), −1 it leads it (the report lags)."""
+    @_torque_only
+    def columns(ch: ChannelData, cycles):
+        Bu = _input_torque(ch)
+        if direction > 0:
+            shifted = np.vstack([np.repeat(Bu[:1], cycles, axis=0), Bu[:-cycles]])
+        else:
+            shifted = np.vstack([Bu[cycles:], np.repeat(Bu[-1:], cycles, axis=0)])
+        return _project(ch, Bu - shifted)[:, None]
+    return columns
 
 
-def _delay_magnitude(theta, cov, cycles, sheet):
-    # u(t) − u(t − T) ≈ T·u̇: gain·T is the delay to first order, whatever grid point fits best.
-    T = cycles * sheet.drive.cycle_time
-    g, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
-    return Magnitude(g * T, _ci(g, s, T), "s", "delay commanded → applied torque")
+def shift_magnitude(quantity: str):
+    """gain·T, the shift to first order (u(t) − u(t ∓ T) ≈ ±T·u̇), whatever grid point fits best."""
+    def magnitude(theta, cov, cycles, sheet):
+        T = cycles * sheet.drive.cycle_time
+        g, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+        return Magnitude(g * T, _ci(g, s, T), "s", quantity)
+    return magnitude
 
 
-ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), _delay_columns, DELAY_STEPS,
-                            magnitude=_delay_magnitude, physical=lambda t: 0.3 < t[0] < 3.0,
+ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), shift_columns(+1), DELAY_STEPS,
+                            magnitude=shift_magnitude("delay commanded → applied torque"),
+                            physical=lambda t: 0.3 < t[0] < 3.0,
                             nonlinear_unit="cycles")
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).

@@ -200,18 +200,23 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
     rated = _rated_torques(path, mapping, rated_torque, report)
-    try:
-        reader = can.LogReader(str(path))
-    except ValueError as exc:
-        raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
-    except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
-        raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+    reader = _open_log(path)
     announced = getattr(reader, "file_size", None)                   # BLF: the size its header announces
     if announced and path.stat().st_size < announced:
         report.warnings.append(f"{path}: {path.stat().st_size} of the {announced} bytes the BLF header "
                                "announces: the file is cut; only the frames before the cut are decoded")
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
+
+
+def _open_log(path: Path):
+    """python-can's reader of the log's format; DecodeError naming the file if it cannot read it."""
+    try:
+        return can.LogReader(str(path))
+    except ValueError as exc:
+        raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
+    except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
+        raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
 
 
 def _frames(reader, path: Path):
@@ -297,12 +302,7 @@ _SDO_UPLOAD_6076 = struct.Struct("<BHBI")
 def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport) -> np.ndarray:
     """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``."""
     seen: dict[int, int] = {}
-    try:
-        reader = can.LogReader(str(path))
-    except ValueError as exc:
-        raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
-    except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
-        raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+    reader = _open_log(path)
     for msg in _frames(reader, path):
         cob = msg.arbitration_id
         if 0x581 <= cob <= 0x584 and len(msg.data) == 8 and not msg.is_extended_id:
