@@ -50,6 +50,8 @@ from ..units import device_measurement, unwrap32
 logger = logging.getLogger(__name__)
 
 _CST_SUPPORTED = supported_mode_bit(_MODE_CST)
+#: Times an SDO request is repeated when no response comes (a frame lost on the bus), as masters do.
+SDO_RETRIES = 3
 
 
 class CommunicationError(RuntimeError):
@@ -379,6 +381,8 @@ class VehicleClient:
             network.listeners.append(self._recorder)
         self.drives = [BaseNode402(i, self._drive_eds) for i in DRIVE_NODE_IDS]
         self.encoders = [canopen.RemoteNode(i, self._encoder_eds) for i in ENCODER_NODE_IDS]
+        for node in self.drives + self.encoders:
+            node.sdo.MAX_RETRIES = SDO_RETRIES          # a lost request or response is sent again
         for node in self.drives + self.encoders:
             network.add_node(node)
         self._network = network

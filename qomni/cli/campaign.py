@@ -43,6 +43,7 @@ def campaign(
     force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
+    from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = load_datasheet(vehicle, datasheet)
@@ -72,6 +73,8 @@ def campaign(
             run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")
+    except CommunicationError as exc:                  # while connecting, before the campaign began
+        fail(f"cannot bring the vehicle up: {exc}")
     from qomni.hil.tools.dbc import write_dbc
 
     write_dbc(out / BUS_DBC)  # decodes bus.blf in CANoe, cantools, candump-based tools
@@ -87,9 +90,9 @@ def campaign(
 
 
 def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=None) -> None:
+    from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import CampaignAborted
-    from qomni.ident.single_axis import (identify_single_axis, plan_single_axis,
-                                   run_single_axis)
+    from qomni.ident.single_axis import identify_single_axis, plan_single_axis, run_single_axis
 
     (out / SINGLE_AXIS_DIR).mkdir(parents=True, exist_ok=True)
     trajectories = plan_single_axis()
@@ -100,6 +103,8 @@ def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=N
                                lambda cb: run_single_axis(link, sheet, out, trajectories, on_progress=cb))
     except CampaignAborted as exc:
         fail(f"single-axis run aborted; recorded data kept in {out / SINGLE_AXIS_DIR}: {exc}")
+    except CommunicationError as exc:
+        fail(f"cannot bring the vehicle up: {exc}")
     result = identify_single_axis(out, sheet)
     pooled, std = result.pooled, result.pooled_std
     console.print("single-axis (lifted): " + ", ".join(
