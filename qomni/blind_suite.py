@@ -11,21 +11,26 @@ Protocol
   that were not switched on; any accepted effect on an ideal case), the held-out shrinkage of the true
   effect's hypothesis in its affected channel, and for two-effect cases whether both are named.
 
-Cases are independent processes (``concurrent.futures``), or Ray tasks on an existing cluster
-(``ray_address``; ``pip install 'qomni[ray]'``). This module is part of the composition root: it writes
-effects files and knows the truth to score against; the diagnosis itself never sees either.
+Cases are tasks on a ``concurrent.futures`` executor: local processes by default, or Dask distributed
+workers (``distributed.Client(address).get_executor()``). Each task runs its campaign in a process of its
+own (its own PyBullet DIRECT client) with the case's seed, and returns its result to the driver, which
+writes the results file after every finished case and, started again, runs only the cases not in it.
+Ray is not offered: on these machines a Ray head binds every interface whatever address it is given.
+This module is part of the composition root: it writes effects files and knows the truth to score
+against; the diagnosis itself never sees either.
 """
 from __future__ import annotations
 
 import json
 import math
 import os
+import socket
 import statistics
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from qomni.conventions import WHEELS
@@ -231,35 +236,66 @@ def reference_run(work: Path, quick: bool, seed: int = 1) -> Path:
 
 
 def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, workers: int | None = None,
-              ray_address: str | None = None, on_result=None) -> list[CaseResult]:
-    """Run every case (reference first), in parallel processes or on a Ray cluster."""
+              executor: Executor | None = None, results_path: str | Path | None = None, on_result=None,
+              runner=None) -> list[CaseResult]:
+    """Run every case (the reference campaign first, on the driver) as tasks of ``executor``.
+
+    Args:
+        all_cases: the cases; work: the directory their runs go to (shared by the workers).
+        quick: quick campaigns. workers: local processes when no executor is given (default: cores).
+        executor: any ``concurrent.futures.Executor`` (a Dask cluster's ``Client.get_executor()``);
+            default a local process pool.
+        results_path: the suite's results file (:func:`write_results`): the cases it already holds are
+            not run again, and it is rewritten atomically after every finished case, so a suite that
+            stops resumes where it stopped.
+        on_result: called with each finished :class:`CaseResult`.
+        runner: ``(case, work, reference, quick) -> CaseResult``, default :func:`run_case`.
+    Returns:
+        the results of every case, the resumed ones included.
+    """
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
-    reference = str(reference_run(work, quick))
-    results = []
-    if ray_address:
-        import ray  # optional extra: pip install 'qomni[ray]'
-
-        ray.init(address=ray_address)
-        remote = ray.remote(num_cpus=1)(run_case)
-        pending = {remote.remote(c, str(work), reference, quick): c for c in all_cases}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                pending.pop(ref)
-                r = ray.get(ref)
-                results.append(r)
-                if on_result:
-                    on_result(r)
-        return results
-    with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
-        futures = [pool.submit(run_case, c, str(work), reference, quick) for c in all_cases]
+    runner = runner or run_case
+    reference = str(reference_run(work, quick)) if runner is run_case else ""
+    wanted = {c.name for c in all_cases}
+    results = [r for r in (read_results(results_path) if results_path and Path(results_path).exists() else [])
+               if r.case.name in wanted]
+    done = {r.case.name for r in results}
+    own = executor is None
+    executor = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1)
+    try:
+        futures = [executor.submit(runner, c, str(work), reference, quick) for c in all_cases
+                   if c.name not in done]
         for f in as_completed(futures):
             r = f.result()
             results.append(r)
+            if results_path:
+                write_results(results, results_path)
             if on_result:
                 on_result(r)
+    finally:
+        if own:
+            executor.shutdown()
     return results
+
+
+def probe_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
+    """A task that checks a worker without a campaign: it builds the case's emulator with its effects and
+    seed (its own PyBullet DIRECT client), runs a tenth of a second and reports where and what it saw."""
+    from qomni.emulator.effects import EffectSet
+    from qomni.emulator.vehicle import Emulator
+
+    started = time.perf_counter()
+    result = CaseResult(case)
+    try:
+        with Emulator(effects=EffectSet.from_dict(case.effects), seed=case.seed) as emu:
+            emu.step(0.1)
+            position = emu.read_sensors().motor_position.tolist()
+        result.verdict = f"probe seed {case.seed} on {socket.gethostname()} pid {os.getpid()}: {position}"
+    except Exception as exc:  # a failed task is reported, not fatal to the suite
+        result.error = f"{type(exc).__name__}: {exc}"
+    result.wall_time = time.perf_counter() - started
+    return result
 
 
 def noise_floor(ideal: list[CaseResult]) -> dict[str, float]:
@@ -335,8 +371,28 @@ def score(results: list[CaseResult]) -> dict:
 
 
 def write_results(results: list[CaseResult], path: str | Path) -> dict:
+    """Write the scored results (atomically) and return the summary."""
     summary = score(results)
     data = {"summary": summary,
             "cases": [dict(asdict(r), top1=r.top1, false_positives=r.false_positives) for r in results]}
     write_json(Path(path), data)
     return summary
+
+
+def read_results(path: str | Path) -> list[CaseResult]:
+    """The case results of a results file written by :func:`write_results`.
+
+    Raises:
+        RunDirectoryError: the file is not valid JSON or a case is malformed (file and case named).
+    """
+    from qomni.ident.rundir import RunDirectoryError, read_json
+
+    out = []
+    names = {f.name for f in fields(CaseResult)}
+    for i, item in enumerate(read_json(Path(path)).get("cases", [])):
+        try:
+            out.append(CaseResult(**{**{k: v for k, v in item.items() if k in names},
+                                     "case": Case(**item["case"])}))
+        except (KeyError, TypeError) as exc:
+            raise RunDirectoryError(f"{path}: cases[{i}] is not a case result: {exc}") from None
+    return out
