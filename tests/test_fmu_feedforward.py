@@ -338,6 +338,20 @@ def test_invalid_mode_and_wrong_token_are_errors(unzipped, version, capsys):
     assert "does not match" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+@pytest.mark.parametrize("name, value", [("q.alpha_l", float("nan")), ("q.alpha_r", float("inf")),
+                                         ("s_dot[2]", float("-inf")), ("q.beta_rr", float("nan"))])
+def test_a_non_finite_input_is_an_error_in_every_mode(unzipped, version, capsys, k, name, value):
+    """Modes 3 and 4 fix the steering angles and read no q.alpha_*: a NaN there is still an error."""
+    api = Api(*_slave(unzipped, version), version).start()
+    api.set(k=k, **{name: value})
+    with pytest.raises(FMICallException):
+        api.get(OUTPUTS)
+    assert f"input {name} is not finite" in capsys.readouterr().out
+    api.close()
+
+
 # --- rebuild from the shipped sources ----------------------------------------------------------------
 @pytest.mark.skipif(shutil.which("cmake") is None, reason="needs cmake")
 @pytest.mark.parametrize("version", [2, 3])
