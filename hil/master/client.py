@@ -34,60 +34,18 @@ import numpy as np
 from canopen.profiles.p402 import BaseNode402, State402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from ..bus import open_bus
-from ..cia import EMCY_BUS_OFF, ERROR_CODE
-from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, CW_FAULT_RESET as _CW_FAULT_RESET,
-                   CW_SHUTDOWN as _CW_SHUTDOWN, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
-                   MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST,
-                   SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK,
-                   supported_mode_bit)
-from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SYNC_COB_ID, WHEELS
 from qomni.vehicle_interface import Measurement
-from ..pdo_codec import PdoCodec, build_codec, encode_entry
+
+from ..cia import (CW_FAULT_RESET as _CW_FAULT_RESET, CW_SHUTDOWN as _CW_SHUTDOWN,
+                   SW_OPERATION_ENABLED as _SW_OPERATION_ENABLED, SW_STATE_MASK as _SW_STATE_MASK)
+from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, SYNC_COB_ID, WHEELS
 from ..tools.recorder import BusRecorder
 from ..units import device_measurement, unwrap32
+from .configure import ClientConfiguration, RecordingNetwork
+from .errors import CommunicationError, DriveFaultError
+from .supervision import ClientSupervision
 
 logger = logging.getLogger(__name__)
-
-_CST_SUPPORTED = supported_mode_bit(_MODE_CST)
-#: Times an SDO request is repeated when no response comes (a frame lost on the bus), as masters do.
-SDO_RETRIES = 3
-
-
-class CommunicationError(RuntimeError):
-    """The vehicle did not answer (in time) or answered wrongly: missing boot-up, SDO abort/timeout,
-    missing TPDO after a SYNC, or a PDO mapping the master cannot use."""
-
-
-class DriveFaultError(CommunicationError):
-    """A drive is no longer OPERATION ENABLED (fault, e.g. after a SYNC timeout, or quick stop).
-
-    Attributes:
-        measurement: the :class:`~qomni.vehicle_interface.Measurement` of the cycle that revealed it.
-        states: {node id: CiA 402 state name} of the drives not in OPERATION ENABLED.
-    """
-
-    def __init__(self, message: str, measurement: Measurement, states: dict[int, str]):
-        super().__init__(message)
-        self.measurement = measurement
-        self.states = states
-
-
-class _RecordingNetwork(canopen.Network):
-    """canopen Network that hands every frame it sends to a :class:`BusRecorder`."""
-
-    recorder: BusRecorder | None = None
-
-    def send_message(self, can_id: int, data, remote: bool = False) -> None:
-        if not self.bus:
-            raise RuntimeError("Not connected to CAN bus")
-        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                          is_remote_frame=remote)
-        with self.send_lock:
-            self.bus.send(msg)
-        if self.recorder is not None:
-            self.recorder.on_transmit(msg)
-        self.check()
 
 
 def state_of(statusword: int) -> str:
@@ -98,7 +56,7 @@ def state_of(statusword: int) -> str:
     return "UNKNOWN"
 
 
-class VehicleClient:
+class VehicleClient(ClientConfiguration, ClientSupervision):
     """Master of the vehicle's CANopen network (drives 1…4 = fl, rl, fr, rr; encoders 5, 6 = left, right).
 
     Args:
@@ -161,7 +119,7 @@ class VehicleClient:
         self.rated_torque = np.full(4, np.nan)
         self.max_torque = np.full(4, np.nan)
         self.cycle = 0
-        self._network: _RecordingNetwork | None = None
+        self._network: RecordingNetwork | None = None
         self._bus: can.BusABC | None = None
         self._recorder: BusRecorder | None = None
         self.drives: list[BaseNode402] = []
@@ -314,30 +272,6 @@ class VehicleClient:
                 return self._rx_done.is_set()
         return self._rx_done.wait(self.tpdo_grace)
 
-    def _error_code(self, node_id: int) -> str:
-        """`` (error code 0x….)`` of a drive's 0x603F, read by SDO as a master does when a drive leaves
-        OPERATION ENABLED; '' if it does not answer."""
-        node = self.drives[DRIVE_NODE_IDS.index(node_id)]
-        timeout, node.sdo.RESPONSE_TIMEOUT = node.sdo.RESPONSE_TIMEOUT, min(node.sdo.RESPONSE_TIMEOUT, 0.1)
-        try:
-            code = int(node.sdo[ERROR_CODE].raw)
-        except Exception:                                 # noqa: BLE001 - the report must not fail
-            return ""
-        finally:
-            node.sdo.RESPONSE_TIMEOUT = timeout
-        return f" (error code 0x{code:04X}{' bus-off' if code == EMCY_BUS_OFF else ''})" if code else ""
-
-    def _lost_cause(self) -> str:
-        """Why TPDOs stopped, where the bus tells: a node's boot-up (power loss or reset) or EMCY since the
-        last complete cycle (bus-off 0x8140 named as such); '' when the bus does not say."""
-        if self._rebooted:
-            return (f"; node(s) {sorted(set(self._rebooted))} sent a boot-up message (power loss or reset): "
-                    "their configuration is gone")
-        since = [(n, c) for n, c, _, t in self.emcy if c and t >= self._last_good - 0.01]
-        if not since:
-            return ""
-        codes = ", ".join(f"node {n}: 0x{c:04X}{' (bus-off)' if c == EMCY_BUS_OFF else ''}" for n, c in since[-12:])
-        return f"; EMCY since the last complete cycle: {codes}"
 
     def enable(self) -> None:
         """Walk every drive to OPERATION ENABLED by SDO (controlword 0x6040, statusword 0x6041), with a
@@ -371,159 +305,7 @@ class VehicleClient:
                     self._write(node, 0x6040, State402.TRANSITIONTABLE[(state, target)])
 
     # ----------------------------------------------------------- set-up
-    def _open(self) -> None:
-        self._bus = open_bus(self._bus_arg) if isinstance(self._bus_arg, str) else self._bus_arg
-        network = _RecordingNetwork(self._bus)
-        network.NOTIFIER_CYCLE = 0.05
-        if self.record is not None:
-            self._recorder = BusRecorder(self.record)
-            network.recorder = self._recorder
-            network.listeners.append(self._recorder)
-        self.drives = [BaseNode402(i, self._drive_eds) for i in DRIVE_NODE_IDS]
-        self.encoders = [canopen.RemoteNode(i, self._encoder_eds) for i in ENCODER_NODE_IDS]
-        for node in self.drives + self.encoders:
-            node.sdo.MAX_RETRIES = SDO_RETRIES          # a lost request or response is sent again
-        for node in self.drives + self.encoders:
-            network.add_node(node)
-        self._network = network
-        network.connect()
 
-    def _boot(self) -> None:
-        booted: set[int] = set()
-        condition = threading.Condition()
-
-        def watcher(node_id):
-            def on_heartbeat(state):
-                if state == 0:
-                    with condition:
-                        booted.add(node_id)
-                        condition.notify_all()
-            return on_heartbeat
-
-        nodes = self.drives + self.encoders
-        for node in nodes:
-            node.nmt.add_heartbeat_callback(watcher(node.id))
-        for node in nodes:
-            node.nmt.send_command(0x82)                  # reset communication
-        with condition:
-            condition.wait_for(lambda: len(booted) == len(nodes), self.boot_timeout)
-        missing = sorted({n.id for n in nodes} - booted)
-        if missing:
-            raise CommunicationError(f"no boot-up from node(s) {missing} within {self.boot_timeout} s "
-                                     f"after NMT reset communication")
-        self._booted = True
-
-    def _configure(self) -> None:
-        period_us = int(round(self.cycle_time * 1e6))
-        for node in self.drives + self.encoders:
-            if 0x1006 in node.object_dictionary:
-                self._write(node, 0x1006, period_us)
-            try:
-                if self._configure_pdos:
-                    node.pdo.read(from_od=True)
-                    node.pdo.save()
-                else:
-                    node.pdo.read()
-            except (SdoAbortedError, SdoCommunicationError) as exc:
-                raise CommunicationError(f"node {node.id}: PDO configuration failed: {exc}") from exc
-            for pdo in list(node.tpdo.map.values()) + list(node.rpdo.map.values()):
-                # The cycle decodes TPDOs itself; canopen's per-frame handlers would only cost time.
-                if pdo.cob_id in self._network.subscribers and \
-                        pdo.on_message in self._network.subscribers[pdo.cob_id]:
-                    self._network.unsubscribe(pdo.cob_id, pdo.on_message)
-        for i, node in enumerate(self.drives):
-            rated = self._read(node, 0x6076)
-            if rated <= 0:
-                raise CommunicationError(f"drive {node.id}: motor rated torque 0x6076 = {rated}")
-            self.rated_torque[i] = rated * 1e-3
-            self.max_torque[i] = self._read(node, 0x6072) * rated * 1e-6
-            if not self._read(node, 0x6502) & _CST_SUPPORTED:
-                raise CommunicationError(f"drive {node.id}: cyclic synchronous torque not in 0x6502")
-            self._write(node, 0x6071, 0)
-            self._write(node, 0x6060, _MODE_CST)
-            mode = self._read(node, 0x6061)
-            if mode != _MODE_CST:
-                raise CommunicationError(f"drive {node.id}: mode display 0x6061 = {mode} after setting "
-                                         f"0x6060 = {_MODE_CST}")
-        for node in self.encoders:
-            if 0x6001 in node.object_dictionary:
-                units = self._read(node, 0x6001)
-                if units != 1 << self.steering_sensor_bits:
-                    logger.warning("encoder %d: 0x6001 = %d measuring units per revolution, data sheet "
-                                   "says %d bits", node.id, units, self.steering_sensor_bits)
-        self._per_mille_per_nm = 1000.0 / self.rated_torque
-        self._max_per_mille = np.minimum(np.rint(self.max_torque * self._per_mille_per_nm), 32767)
-        self._plan_cycle()
-
-    def _plan_cycle(self) -> None:
-        """Compile the RPDOs to send and the TPDOs to await from the configured PDO maps."""
-        self._rpdo_plan: list[tuple[int, PdoCodec, int, list]] = []
-        for i, node in enumerate(self.drives):
-            has_torque = False
-            for pdo in node.rpdo.map.values():
-                if not pdo.enabled or not pdo.map:
-                    continue
-                codec = _codec(node, pdo, receive=True)
-                slots = []
-                for key in codec.keys:
-                    if key == (0x6071, 0):
-                        slots.append(None)
-                        has_torque = True
-                    elif key == (0x6040, 0):
-                        slots.append(_CW_ENABLE_OPERATION)
-                    elif key == (0x6060, 0):
-                        slots.append(_MODE_CST)
-                    else:
-                        raise CommunicationError(f"drive {node.id}: RPDO {pdo.cob_id:#x} maps "
-                                                 f"0x{key[0]:04X}:{key[1]:02X}, the master has no value for it")
-                self._rpdo_plan.append((pdo.cob_id, codec, i, slots))
-            if not has_torque:
-                raise CommunicationError(f"drive {node.id}: target torque 0x6071 is in no enabled RPDO")
-        self._tpdo_plan: dict[int, tuple[PdoCodec, list]] = {}
-        for nodes, inputs in ((self.drives, _DRIVE_INPUTS), (self.encoders, _ENCODER_INPUTS)):
-            for i, node in enumerate(nodes):
-                found = set()
-                for pdo in node.tpdo.map.values():
-                    if not pdo.enabled or not pdo.map:
-                        continue
-                    if pdo.trans_type != 1:
-                        logger.warning("node %d: TPDO %#x has transmission type %s, not awaited each "
-                                       "SYNC; its data are not used", node.id, pdo.cob_id, pdo.trans_type)
-                        continue
-                    codec = _codec(node, pdo, receive=False)
-                    sinks = [(inputs[k], i) if k in inputs else None for k in codec.keys]
-                    found.update(k for k in codec.keys if k in inputs)
-                    self._tpdo_plan[pdo.cob_id] = (codec, sinks)
-                needed = set(inputs) - {(0x6041, 0)} - found
-                if needed:
-                    raise CommunicationError(
-                        f"node {node.id}: {', '.join(f'0x{k[0]:04X}' for k in sorted(needed))} not in a "
-                        f"synchronous TPDO (transmission type 1)")
-        self._expected = len(self._tpdo_plan)
-
-    def _recent_emcy(self, seconds: float = 2.0) -> str:
-        now = time.time()
-        recent = [(n, c) for n, c, _, t in self.emcy[-12:] if c and now - t < seconds]
-        return "; EMCY " + ", ".join(f"node {n}: 0x{c:04X}" for n, c in recent) if recent else ""
-
-    def _watch_nodes(self) -> None:
-        """Boot-up and EMCY supervision (module docstring)."""
-        def on_state(node_id):
-            def callback(state):
-                if state == 0 and self._operational:
-                    self._rebooted.append(node_id)
-            return callback
-
-        def on_emcy(node_id):
-            def callback(error):
-                self.emcy.append((node_id, error.code, error.register, time.time()))
-                if error.code:
-                    logger.warning("EMCY from node %d: 0x%04X (%s)", node_id, error.code, error.get_desc())
-            return callback
-
-        for node in self.drives + self.encoders:
-            node.nmt.add_heartbeat_callback(on_state(node.id))
-            node.emcy.add_callback(on_emcy(node.id))
 
     def _start(self) -> None:
         for cob_id in self._tpdo_plan:
@@ -590,9 +372,3 @@ class VehicleClient:
                 from exc
 
 
-def _codec(node, pdo, receive: bool) -> PdoCodec:
-    entries = [encode_entry(var.index, var.subindex, var.length) for var in pdo.map]
-    try:
-        return build_codec(node.object_dictionary, entries, receive)
-    except ValueError as exc:
-        raise CommunicationError(f"node {node.id}: PDO {pdo.cob_id:#x}: {exc}") from exc
