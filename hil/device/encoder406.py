@@ -10,10 +10,11 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from ..cia import ABORT_VALUE_RANGE
+from .lss import LssSlave
 from .node301 import Node301
 
 
-class Encoder406(Node301):
+class Encoder406(LssSlave, Node301):
     """Steering angle encoder. Args as :class:`qomni.hil.device.node301.Node301`, plus ``name`` for logs."""
 
     def __init__(self, node_id, eds, *, lock=None, sync_timeout=0.1, name: str = ""):
