@@ -12,8 +12,12 @@ the torque the plant integrates: nothing is mirrored, the motion comes from the 
 run a position loop in front of it (cascade)::
 
     v_cmd = k_ff · v_demand + K_v · (x_demand − x)        K_v = 0x2010:1 [0.001/s], k_ff = 0x2010:2 [‰]
+    torque = velocity loop(v_cmd) + J_ff · a_demand       J_ff = 0x2010:3 [10⁻⁶ kg m², motor side]
 
-with ``x`` = position actual 0x6064 and the loop's measurements taken at the previous SYNC.
+with ``x`` = position actual 0x6064 and the loop's measurements taken at the previous SYNC, ``a_demand``
+the demand's acceleration converted to rad/s² with 0x608F and the torque to ‰ of 0x6076. J_ff = 0 (the
+default: the drive does not know its load) leaves the acceleration to the velocity loop's integral,
+which then overshoots the profile velocity by a few per cent; a commissioned drive sets its inertia.
 
 * CSP: ``x_demand`` = target position 0x607A as received at this SYNC, ``v_demand`` its difference to
   the previous SYNC's over the cycle time 0x1006. Following error 0x60F4 = x_demand − x; statusword bit 13
@@ -171,24 +175,26 @@ class DriveModes:
         drive, values = self.drive, self.drive.values
         dt = drive._cycle_time()
         halt = bool(self._controlword & CW_HALT)
+        v0 = self.v
         if mode == MODE_CSP:
             target = values[(0x607A, 0)]
-            v_demand = (target - self.last_target) / dt
+            self.v = (target - self.last_target) / dt
             self.last_target, self.x = target, float(target)
-            out = self._position_loop(v_demand, limit)
         elif mode == MODE_PP:
             self._profile_position(halt, dt)
-            out = self._position_loop(self.v, limit)
         elif mode == MODE_PV:
             goal = 0 if halt else values.get((0x60FF, 0), 0)
-            self.v = ramp(self.v, goal, values.get((0x6083, 0), 0), values.get((0x6084, 0), 0), dt)
+            self.v = ramp(v0, goal, values.get((0x6083, 0), 0), values.get((0x6084, 0), 0), dt)
             self.profile_done = self.v == goal
-            out = drive._velocity_control(limit, self.v)
         elif mode == MODE_HOMING:
             self._homing(halt, dt)
-            out = self._position_loop(self.v, limit)
         else:
-            out = 0
+            return 0
+        if mode == MODE_PV:
+            out = drive._velocity_control(limit, self.v)
+        else:
+            out = self._position_loop(self.v, limit)
+        out += self._acceleration_feed_forward((self.v - v0) / dt)
         self._supervise(mode, dt)
         self._refresh()
         return out
@@ -203,6 +209,15 @@ class DriveModes:
         kv = values.get((0x2010, 1), 0) * 1e-3
         kff = values.get((0x2010, 2), 1000) * 1e-3
         return self.drive._velocity_control(limit, kff * v_demand + kv * error)
+
+    def _acceleration_feed_forward(self, acceleration: float) -> float:
+        """J_ff · a [‰ of 0x6076] for a demand acceleration in inc/s²."""
+        values = self.drive.values
+        inertia = values.get((0x2010, 3), 0) * 1e-6
+        if not inertia:
+            return 0.0
+        per_rev = values.get((0x608F, 1), 65536) / max(1, values.get((0x608F, 2), 1))
+        return inertia * acceleration * 2 * math.pi / per_rev / (values[(0x6076, 0)] * 1e-6)
 
     def _profile_position(self, halt: bool, dt: float) -> None:
         values = self.drive.values
