@@ -31,10 +31,13 @@ from __future__ import annotations
 
 import enum
 import logging
+from pathlib import Path
+
+from canopen import objectdictionary as od
 
 from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV,
+from ..cia import (ABORT_LENGTH_HIGH, ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV,
                    MODE_CST, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE,
                    SW_VOLTAGE_ENABLED)
 from .drive_modes import HOMING_METHODS, SUPPORTED_MODES, DriveModes
@@ -42,6 +45,9 @@ from .lss import LssSlave
 from .node301 import Node301
 
 logger = logging.getLogger(__name__)
+
+#: Bytes the user data object 0x2020 (DOMAIN, commissioning notes) holds.
+USER_DATA_SIZE = 4096
 
 # Statusword bits (CiA 402 §6, object 0x6041) beyond the state coding.
 
@@ -145,6 +151,8 @@ class Drive402(LssSlave, Node301):
         self._over_torque_s = 0.0     # how long |0x6077| > 0x6072 has lasted
         super().__init__(node_id, eds, lock=lock, sync_timeout=sync_timeout)
         self.modes = DriveModes(self)
+        if 0x1021 in self.object_dictionary and not isinstance(eds, od.ObjectDictionary):
+            self._defaults[(0x1021, 0)] = self.values[(0x1021, 0)] = Path(eds).read_bytes()   # Store EDS
         self.on_reset_application()
 
     # ------------------------------------------------------------ values
@@ -247,6 +255,8 @@ class Drive402(LssSlave, Node301):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index == 0x6098 and value not in HOMING_METHODS:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == 0x2020 and len(value) > USER_DATA_SIZE:
+            raise SdoAbortedError(ABORT_LENGTH_HIGH)
 
     def on_write(self, index, subindex, value):
         if index == 0x6040:
