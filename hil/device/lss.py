@@ -1,7 +1,8 @@
 """LSS slave (CiA 305, layer setting services) of the emulated nodes.
 
 Requests on COB-ID 0x7E5, responses on 0x7E4 (8 bytes, byte 0 the command specifier). The LSS address is
-the identity object 0x1018:1…4 (vendor-ID, product code, revision number, serial number).
+the identity object 0x1018:1…4 (vendor-ID, product code, revision number, serial number); an EDS serial
+number of 0 is replaced by the node-ID the device is built with, so the vehicle's nodes differ.
 
 * Switch state global (0x04) and selective (0x40…0x43 → 0x44): waiting ↔ configuration state.
 * In configuration state: configure node-ID (0x11; 1…127, or 255 = not configured), configure bit
@@ -40,6 +41,8 @@ class LssSlave:
 
     def __init__(self, node_id, eds, **kwargs):
         super().__init__(node_id, eds, **kwargs)
+        if self.values.get((0x1018, 4)) == 0:          # factory serial number: distinct on the vehicle
+            self._defaults[(0x1018, 4)] = self.values[(0x1018, 4)] = node_id
         self.lss_state = WAITING
         self.pending_node_id = node_id
         info = self.object_dictionary.device_information
