@@ -13,7 +13,7 @@ def _position(master, node_id=5):
     return struct.unpack("<I", master.cycle()[0x180 + node_id])[0]
 
 
-def test_resolution_code_sequence_and_preset(master, server, plant):
+def test_resolution_code_sequence_and_preset(master, unsupervised_server, plant):
     encoder = master.encoder[5]
     master.nmt(0x01)
     physical = int(np.rint(plant.alpha[0] / (2 * np.pi) * 2**BITS))

@@ -50,7 +50,7 @@ def _enable(master, node, mode, cw_frame):
     return tpdos
 
 
-def test_supported_drive_modes_tell_the_truth(master, server):
+def test_supported_drive_modes_tell_the_truth(master, unsupervised_server):
     """0x6502 has a bit exactly for the modes 0x6060 accepts; canopen reads it the same way."""
     node = master.drive[1]
     supported = node.sdo[0x6502].raw
@@ -67,7 +67,7 @@ def test_supported_drive_modes_tell_the_truth(master, server):
             assert node.sdo[0x6061].raw == mode
 
 
-def test_csp_tracks_a_ramp_within_the_following_error_window(master, server, plant):
+def test_csp_tracks_a_ramp_within_the_following_error_window(master, unsupervised_server, plant):
     node = master.drive[1]
     _remap_rpdo1(node, 0x60400010, 0x607A0020)
     frame = lambda cw, x=0: (0x201, struct.pack("<Hi", cw, x))           # noqa: E731
@@ -92,7 +92,7 @@ def test_csp_tracks_a_ramp_within_the_following_error_window(master, server, pla
     assert sw & 1 << 13
 
 
-def test_profile_position_reaches_target_with_profile_limits(master, server, plant):
+def test_profile_position_reaches_target_with_profile_limits(master, unsupervised_server, plant):
     node = master.drive[1]
     frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))                # noqa: E731
     v_max, acc = 2 * REV, 10 * REV
@@ -121,7 +121,7 @@ def test_profile_position_reaches_target_with_profile_limits(master, server, pla
     assert plant.theta[0] == pytest.approx(2 * np.pi, abs=2 * np.pi * 200 / REV)
 
 
-def test_profile_velocity_ramps_and_halts(master, server):
+def test_profile_velocity_ramps_and_halts(master, unsupervised_server):
     node = master.drive[1]
     frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))                # noqa: E731
     acc = 10 * REV

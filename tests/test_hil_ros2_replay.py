@@ -65,7 +65,7 @@ class Cia402Replay:
         assert self.wait(lambda sw: self.node.sdo[0x6061].raw == mode, 10)
 
 
-def test_cia402_driver_init_homes_then_profile_position(master, server, plant):
+def test_cia402_driver_init_homes_then_profile_position(master, unsupervised_server, plant):
     drive = Cia402Replay(master)
     master.nmt(0x01)
     drive.cycle()
@@ -112,7 +112,7 @@ def test_cia402_driver_init_homes_then_profile_position(master, server, plant):
     assert abs(plant.theta[0] - start - np.pi) < tolerance                           # half a revolution
 
 
-def test_cia402_driver_cyclic_position_stream(master, server, plant):
+def test_cia402_driver_cyclic_position_stream(master, unsupervised_server, plant):
     """CSP as the cyclic mode helper drives it: 0x607A each cycle, halt off, after init without homing."""
     drive = Cia402Replay(master, 2)
     master.nmt(0x01)
