@@ -27,6 +27,7 @@ class Cia402Replay:
     def __init__(self, master, node_id=1):
         self.master, self.node = master, master.drive[node_id]
         self.id = node_id
+        self.node.sdo[0x1400][5].raw = 0            # no RPDO deadline: SDO pauses between SYNCs
         self.cw = 0
         self.sw = self.position = 0
         self.cycles = 0
