@@ -23,7 +23,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ..cia import MODE_NAMES
 
 #: Short names of the CiA 402 modes (canopen / ros2_canopen usage).
-MODE_SHORT = {1: "PP", 2: "VL", 3: "PV", 4: "TQ", 6: "HM", 7: "IP", 8: "CSP", 9: "CSV", 10: "CST"}
+MODE_SHORT = {0: "none", 1: "PP", 2: "VL", 3: "PV", 4: "TQ", 6: "HM", 7: "IP", 8: "CSP", 9: "CSV", 10: "CST"}
 #: Power states by statusword (mask, value), CiA 402 §6.
 POWER_STATES = (("NOT READY TO SWITCH ON", 0x4F, 0x00), ("SWITCH ON DISABLED", 0x4F, 0x40),
                 ("READY TO SWITCH ON", 0x6F, 0x21), ("SWITCHED ON", 0x6F, 0x23),
@@ -163,7 +163,7 @@ def table_rows(reports: list[NodeReport]) -> list[list[str]]:
     for r in reports:
         rows.append([str(r.node_id), f"CiA {r.profile}", r.name or "-", *map(hex_or_dash, r.identity),
                      " ".join(MODE_SHORT.get(m, str(m)) for m in r.modes) or "-",
-                     MODE_SHORT.get(r.mode, "-") if r.mode is not None else "-", r.state or "-",
+                     MODE_SHORT.get(r.mode, str(r.mode)) if r.mode is not None else "-", r.state or "-",
                      ms(r.sdo_p50), ms(r.sdo_p99)])
     return rows
 
