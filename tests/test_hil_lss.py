@@ -17,7 +17,7 @@ DRIVE_ADDRESS = (0x00000000, 0x00000402, 0x00010000)                 # vendor, p
 
 @pytest.fixture
 def lss(master, server):
-    master.net.lss.RESPONSE_TIMEOUT = 0.1
+    master.net.lss.RESPONSE_TIMEOUT = 0.5         # fastscan reads a missing answer as a 1 bit: no early give-up
     return master.net.lss
 
 
