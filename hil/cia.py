@@ -130,9 +130,16 @@ SW_VOLTAGE_ENABLED = 1 << 4
 SW_QUICK_STOP = 1 << 5                         # 1 = quick stop NOT active
 SW_REMOTE = 1 << 9
 SW_INTERNAL_LIMIT = 1 << 11                    # target torque clipped by 0x6072
-SW_FOLLOWS_COMMAND = 1 << 12                   # CST: drive follows the command value
+SW_TARGET_REACHED = 1 << 10                    # PP/PV: target reached; HM: with 12/13 the homing status
+SW_FOLLOWS_COMMAND = 1 << 12                   # CSP/CSV/CST: drive follows the command value
+SW_SETPOINT_ACK = 1 << 12                      # PP: set-point acknowledge; PV: speed 0; HM: homing attained
+SW_FOLLOWING_ERROR = 1 << 13                   # CSP/PP: following error; HM: homing error
 
 MODE_NONE = 0
+MODE_PP = 1                                    # profile position
+MODE_PV = 3                                    # profile velocity
+MODE_HOMING = 6
+MODE_CSP = 8                                   # cyclic synchronous position
 MODE_CSV = 9                                   # cyclic synchronous velocity
 MODE_CST = 10                                  # cyclic synchronous torque
 MODE_NAMES = {0: "no mode", 1: "profile position", 3: "profile velocity", 4: "profile torque", 6: "homing",

@@ -30,3 +30,11 @@ def plant():
 def server(channel, master, plant):
     with VehicleServer(plant, f"virtual:{channel}") as srv:
         yield srv
+
+
+@pytest.fixture
+def unsupervised_server(channel, master, plant):
+    """The vehicle without SYNC-loss supervision: for masters that pause between SYNCs (SDO set-up in
+    lock-step) on a loaded machine; the supervision itself is tested with ``server``."""
+    with VehicleServer(plant, f"virtual:{channel}", sync_timeout=None) as srv:
+        yield srv

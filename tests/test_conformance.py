@@ -90,7 +90,7 @@ def sync_point(master, node_id):
     (expedited(0x6071, 0, b"\x01\x00\x00\x00"), 0x06070012),             # 4 bytes to INTEGER16
     (expedited(0x6076, 0, b"\x01"), 0x06070013),                         # 1 byte to UNSIGNED32
     (expedited(0x605A, 0, b"\x09\x00"), 0x06090031),                     # above HighLimit 8
-    (expedited(0x6060, 0, b"\x01"), 0x06090030),                         # mode not supported
+    (expedited(0x6060, 0, b"\x02"), 0x06090030),                         # mode 2 (velocity) not supported
     (expedited(0x1003, 0, b"\x03"), 0x06090030),                         # only 0 clears 0x1003
     (segmented_init(0x6076, 0, 10), 0x06070012),                         # segmented, size too high
     (segmented_init(0x6076, 0, 2), 0x06070013),                          # segmented, size too low

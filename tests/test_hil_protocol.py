@@ -60,7 +60,7 @@ def test_sdo_identity_and_segmented_upload(master, server):
     with pytest.raises(canopen.SdoAbortedError):
         drive.sdo[0x6041].raw = 0                                # read-only
     with pytest.raises(canopen.SdoAbortedError):
-        drive.sdo[0x6060].raw = 1                                # profile position: not supported
+        drive.sdo[0x6060].raw = 2                                # velocity mode: not supported
 
 
 # ------------------------------------------------------------------------------ CiA 402

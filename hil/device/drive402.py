@@ -31,17 +31,23 @@ from __future__ import annotations
 
 import enum
 import logging
+from pathlib import Path
+
+from canopen import objectdictionary as od
 
 from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV,
-                   MODE_CST, MODE_NONE, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE,
+from ..cia import (ABORT_LENGTH_HIGH, ABORT_VALUE_RANGE, CW_FAULT_RESET, EMCY_COMMUNICATION, EMCY_EXCESS_TORQUE, MODE_CSV,
+                   MODE_CST, SW_FOLLOWS_COMMAND, SW_INTERNAL_LIMIT, SW_QUICK_STOP, SW_REMOTE,
                    SW_VOLTAGE_ENABLED)
+from .drive_modes import HOMING_METHODS, SUPPORTED_MODES, DriveModes
+from .lss import LssSlave
 from .node301 import Node301
 
 logger = logging.getLogger(__name__)
 
-SUPPORTED_MODES = (MODE_NONE, MODE_CSV, MODE_CST)
+#: Bytes the user data object 0x2020 (DOMAIN, commissioning notes) holds.
+USER_DATA_SIZE = 4096
 
 # Statusword bits (CiA 402 §6, object 0x6041) beyond the state coding.
 
@@ -124,8 +130,8 @@ def _int16(x: int) -> int:
     return -32768 if x < -32768 else 32767 if x > 32767 else x
 
 
-class Drive402(Node301):
-    """A CiA 402 servo drive in cyclic synchronous torque or velocity mode.
+class Drive402(LssSlave, Node301):
+    """A CiA 402 servo drive: CST and CSV here, PP, PV, HM and CSP in :mod:`.drive_modes`; an LSS slave.
 
     Args:
         node_id, eds, lock, sync_timeout: see :class:`qomni.hil.device.node301.Node301`.
@@ -144,6 +150,9 @@ class Drive402(Node301):
         self._integral = 0.0          # CSV integral part, per mille
         self._over_torque_s = 0.0     # how long |0x6077| > 0x6072 has lasted
         super().__init__(node_id, eds, lock=lock, sync_timeout=sync_timeout)
+        self.modes = DriveModes(self)
+        if 0x1021 in self.object_dictionary and not isinstance(eds, od.ObjectDictionary):
+            self._defaults[(0x1021, 0)] = self.values[(0x1021, 0)] = Path(eds).read_bytes()   # Store EDS
         self.on_reset_application()
 
     # ------------------------------------------------------------ values
@@ -173,7 +182,7 @@ class Drive402(Node301):
             elif mode == MODE_CSV:
                 target = self._velocity_control(limit)
             else:
-                target = 0
+                target = self.modes.torque(mode, limit)
             torque = -limit if target < -limit else limit if target > limit else target
             limited = torque != target
         elif state is S.QUICK_STOP_ACTIVE:
@@ -189,10 +198,11 @@ class Drive402(Node301):
     def _cycle_time(self) -> float:
         return (self.values.get((0x1006, 0)) or 2000) * 1e-6
 
-    def _velocity_control(self, limit: int) -> int:
-        """CSV: PI velocity controller on 0x606C (sampled at the previous SYNC) → per mille."""
+    def _velocity_control(self, limit: int, demand: float | None = None) -> int:
+        """Velocity loop: PI on 0x606C (sampled at the previous SYNC) → per mille; demand [inc/s] is 0x60FF
+        (CSV) unless given (the position and profile modes)."""
         values = self.values
-        error = values[(0x60FF, 0)] - values[(0x606C, 0)]
+        error = (values[(0x60FF, 0)] if demand is None else demand) - values[(0x606C, 0)]
         kp = values.get((0x60F9, 1), 0) * 1e-3                 # per mille per increment/s
         ti = values.get((0x60F9, 2), 0) * 1e-3                 # s
         proportional = kp * error
@@ -214,11 +224,13 @@ class Drive402(Node301):
         """SYNC phase 2: the measured values the TPDOs will carry.
 
         Args:
-            position: motor encoder increments, any int (wrapped to INTEGER32 like the drive's counter).
+            position: motor encoder increments, any int (plus the homing offset, wrapped to INTEGER32
+                like the drive's counter).
             velocity: increments/s (saturated to INTEGER32).
             torque: N m motor side, torque actual; sent as per mille of 0x6076 (rounded, INTEGER16).
         """
         values = self.values
+        position += self.modes.offset                     # homing: 0x6064 = encoder count + offset
         values[(0x6064, 0)] = ((position + 0x80000000) & 0xFFFFFFFF) - 0x80000000
         values[(0x606C, 0)] = max(-0x80000000, min(0x7FFFFFFF, velocity))
         actual = values[(0x6077, 0)] = _int16(round(torque * 1e6 / values[(0x6076, 0)]))
@@ -241,13 +253,19 @@ class Drive402(Node301):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         if index == 0x6076 and value <= 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == 0x6098 and value not in HOMING_METHODS:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if index == 0x2020 and len(value) > USER_DATA_SIZE:
+            raise SdoAbortedError(ABORT_LENGTH_HIGH)
 
     def on_write(self, index, subindex, value):
         if index == 0x6040:
             self._controlword(value)
+            self.modes.controlword(value)
         elif index == 0x6060:
             self.values[(0x6061, 0)] = value
             self._integral = 0.0
+            self.modes.restart()
             self._update_statusword()
 
     def on_reset_application(self):
@@ -259,6 +277,7 @@ class Drive402(Node301):
         self._over_torque_s = 0.0
         self.values[(0x6061, 0)] = self.values[(0x6060, 0)]
         self.values[(0x603F, 0)] = 0
+        self.modes = DriveModes(self)                  # homing offset and set-points lost
         self._set_state(S.SWITCH_ON_DISABLED)          # transition 1, automatic
 
     def on_power_off(self):
@@ -327,6 +346,9 @@ class Drive402(Node301):
         if state is not self.state:
             logger.debug("%s (node %d): %s → %s", self.name, self.id, self.state.label, state.label)
             self.state = state
+            if state is S.OPERATION_ENABLED:
+                self._integral = 0.0
+                self.modes.restart()
         if state is not S.OPERATION_ENABLED:
             self.applied_torque = 0
         self._update_statusword()
@@ -343,4 +365,6 @@ class Drive402(Node301):
                 word |= SW_FOLLOWS_COMMAND
             if self._limited:
                 word |= SW_INTERNAL_LIMIT
+        self.modes.bits = bits = self.modes.status_bits()
+        word |= bits
         self.values[(0x6041, 0)] = word

@@ -41,6 +41,7 @@ from ..cia import (CW_FAULT_RESET as _CW_FAULT_RESET, CW_SHUTDOWN as _CW_SHUTDOW
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, SYNC_COB_ID, WHEELS
 from ..tools.recorder import BusRecorder
 from ..units import device_measurement, unwrap32
+from . import dcf
 from .configure import ClientConfiguration, RecordingNetwork
 from .errors import CommunicationError, DriveFaultError
 from .supervision import ClientSupervision
@@ -77,13 +78,15 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
             cannot turn a late frame into a held sample.
         boot_timeout: s, how long :meth:`connect` waits for boot-up messages.
         enable_timeout: s, per drive, for the walk to OPERATION ENABLED.
+        concise_dcf: {node-ID: concise DCF} (:mod:`qomni.hil.master.dcf`, the CiA 302 0x1F22 content)
+            written to that node by SDO after boot-up, before the client's own configuration.
     Attributes:
         rated_torque: (4,) N m motor side, from 0x6076 (read at connect).
         max_torque: (4,) N m motor side, from 0x6072.
         cycle: SYNCs sent since connect.
         missed: {COB-ID: cycles} whose TPDO did not arrive and was held from the cycle before.
     Raises:
-        ValueError: non-positive data-sheet numbers.
+        ValueError: non-positive data-sheet numbers; ConciseDcfError (a ValueError): a malformed concise DCF.
 
     The drives supervise the master: if SYNCs stop for longer than their SYNC timeout (0.1 s for the
     emulator) while they are enabled, they fault and the next :meth:`exchange` raises
@@ -96,7 +99,8 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
                  record: str | Path | list[str | Path] | None = None,
                  drive_eds: str | Path = DRIVE_EDS, encoder_eds: str | Path = ENCODER_EDS,
                  configure_pdos: bool = True, timeout: float = 0.5, boot_timeout: float = 2.0,
-                 enable_timeout: float = 1.0, max_missed: int = 5, tpdo_grace: float | None = None):
+                 enable_timeout: float = 1.0, max_missed: int = 5, tpdo_grace: float | None = None,
+                 concise_dcf: dict[int, bytes] | None = None):
         if encoder_increments <= 0 or steering_sensor_bits <= 0 or not cycle_time > 0:
             raise ValueError("encoder_increments, steering_sensor_bits and cycle_time must be > 0")
         self.encoder_increments = int(encoder_increments)
@@ -116,6 +120,9 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
         self._bus_arg = bus
         self._drive_eds, self._encoder_eds = str(drive_eds), str(encoder_eds)
         self._configure_pdos = configure_pdos
+        self._concise_dcf = {int(k): bytes(v) for k, v in (concise_dcf or {}).items()}
+        for data in self._concise_dcf.values():
+            dcf.parse(data)                              # a malformed one fails here, not at connect
         self.rated_torque = np.full(4, np.nan)
         self.max_torque = np.full(4, np.nan)
         self.cycle = 0

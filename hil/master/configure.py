@@ -1,5 +1,5 @@
 """Bringing the vehicle's network up for the client: open the bus, await the boot-up messages, configure
-every node by SDO (0x1006, the PDO mapping from the EDS or read from the devices, the drives' mode) and
+every node by SDO (a concise DCF where given, 0x1006, the PDO mapping from the EDS or read from the devices, the drives' mode) and
 plan the cycle's codecs (CiA 301 §7.2.2 PDOs; CiA 402 0x6060/0x6061, 0x6502)."""
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, MEASURED_DRIVE_O
 from ..layout import DRIVE_NODE_IDS, ENCODER_NODE_IDS
 from ..pdo_codec import PdoCodec, build_codec, encode_entry
 from ..tools.recorder import BusRecorder
+from . import dcf
 from .errors import CommunicationError
 
 logger = logging.getLogger(__name__)
@@ -92,6 +93,9 @@ class ClientConfiguration:
 
     def _configure(self) -> None:
         period_us = int(round(self.cycle_time * 1e6))
+        for node in self.drives + self.encoders:
+            if node.id in self._concise_dcf:
+                dcf.apply(node, self._concise_dcf[node.id])       # CiA 302: the manager's 0x1F22 first
         for node in self.drives + self.encoders:
             if 0x1006 in node.object_dictionary:
                 self._write(node, 0x1006, period_us)
