@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import can
 
+from .virtual_bus import InlineVirtualBus
+
 DEFAULT_VIRTUAL_CHANNEL = "qomni"
 _FORBIDDEN = {"udp_multicast": "it sends frames to a non-loopback multicast address"}
 _BITRATE = re.compile(r"^(\d+(?:\.\d+)?)([kKmM]?)$")
@@ -89,6 +91,9 @@ def _socketcand_spec(where: str, bitrate: int | None, spec: str) -> BusSpec:
 def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
     """Open the python-can bus described by ``spec``; ``kwargs`` go to ``can.Bus`` unchanged.
 
+    ``virtual`` opens a :class:`qomni.hil.virtual_bus.InlineVirtualBus` (a python-can ``virtual`` bus,
+    peer of every other ``virtual`` bus of the process on the channel, that can deliver inline).
+
     Raises:
         ValueError: bad spec (see :func:`parse_bus_spec`).
         can.CanError: the interface could not be opened (driver missing, no such device).
@@ -101,6 +106,8 @@ def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
         kwargs.setdefault("host", parsed.host)
         kwargs.setdefault("port", parsed.port)
         kwargs.setdefault("tcp_tune", True)
+    if parsed.interface == "virtual":
+        return InlineVirtualBus(channel=parsed.channel, **kwargs)
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
 
 

@@ -46,6 +46,7 @@ import canopen
 import numpy as np
 
 from ..bus import open_bus
+from ..virtual_bus import attach_inline
 from ..cia import EMCY_BUS_OFF
 from .drive402 import Drive402
 from .encoder406 import Encoder406
@@ -222,6 +223,7 @@ class VehicleServer:
         network.subscribe(SYNC_COB_ID, self._on_sync)
         self.network = network
         network.connect()
+        attach_inline(network)          # an in-process virtual bus: SYNC answered in the sender's thread
         for node in self.nodes:
             node.boot()
         self._stop_event.clear()
