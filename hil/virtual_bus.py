@@ -58,6 +58,20 @@ def copy_message(msg: can.Message, timestamp: float, channel) -> can.Message:
     return out
 
 
+def data_frame(can_id: int, data: bytes) -> can.Message:
+    """An 11-bit data frame ``can_id`` (≤ 0x7FF) carrying ``data`` (≤ 8 bytes), built without python-can's
+    argument checks: for senders whose frames are valid by construction (PDOs from a compiled codec)."""
+    out = _new(_Message)
+    out.timestamp = 0.0
+    out.arbitration_id = can_id
+    out.is_extended_id = out.is_remote_frame = out.is_error_frame = False
+    out.channel = None
+    out.dlc = len(data)
+    out.data = bytearray(data)
+    out.is_fd = out.is_rx = out.bitrate_switch = out.error_state_indicator = False
+    return out
+
+
 class _Inbox(queue.Queue):
     """The receive queue of an :class:`InlineVirtualBus`; ``deliver`` set = listeners called inline."""
 
