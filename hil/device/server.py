@@ -47,7 +47,7 @@ import can
 import canopen
 import numpy as np
 
-from ..bus import open_bus
+from ..bus import batched, open_bus
 from ..virtual_bus import attach_inline
 from ..cia import EMCY_BUS_OFF
 from .drive402 import Drive402
@@ -322,8 +322,9 @@ class VehicleServer:
         steering = reading.steering_position.tolist()
         for j, encoder in enumerate(self.encoders):
             encoder.set_position(int(steering[j]))
-        for node in self.nodes:
-            node.sync_transmit()
+        with batched(self.network.bus):            # the SYNC's TPDOs in one write where the bus can
+            for node in self.nodes:
+                node.sync_transmit()
         sent = time.time()
         self.cycles += 1
         if not self.realtime:
