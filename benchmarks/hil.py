@@ -56,7 +56,7 @@ def lockstep_campaign(quick: bool) -> tuple[float, float]:
     """(emulated s, wall s) of the lock-step campaign (benchmarks/run.py's measurement)."""
     from qomni.emulator.description import VehicleDescription
 
-    return _bench_run_module().campaign(VehicleDescription.load(), quick)
+    return _bench_run_module().campaign(VehicleDescription.load(), quick)[:2]
 
 
 # ------------------------------------------------------------------ real-time master and echo responder
@@ -332,7 +332,7 @@ def main() -> None:
     description = VehicleDescription.load()
     bare = bench.bare_pybullet_step(description, 2000)
     physics = bare * round(T_S / 0.001)
-    cycle = bench.lockstep_cycle(description, 500)
+    cycle, _ = bench.lockstep_cycle(description, 500)
     print(f"\nbare PyBullet step {bare * 1e6:.1f} µs (baseline; physics of a cycle {physics * 1e6:.0f} µs)")
     print(f"  lock-step CANopen cycle {cycle * 1e6:.0f} µs = {cycle / physics:.2f} × bare physics of a cycle")
     print(f"  real time, emulator median / p99 SYNC→last TPDO (device) = {emu['latency_median'] / physics:.2f} / "

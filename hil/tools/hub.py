@@ -23,6 +23,11 @@ Protocol (socketcand, https://github.com/linux-can/socketcand ``doc/protocol.md`
   mode sends a frame; ``< bcmode >`` leaves raw mode; ``< echo >`` → ``< echo >``;
 * anything else → ``< error TEXT >`` (the connection stays open; an over-long element closes it).
 
+Hot path: the frames of one read from a client are forwarded to each other client in one write (a
+device's TPDOs of a SYNC, sent in one write, leave the hub in one write); a well-formed
+``< send ID LEN B… >`` with a standard ID is recognised by one regular expression, every other element
+goes through the full parser with its error answers.
+
 Bounds: at most ``max_clients`` connections (more are told ``< error too many clients >`` and closed),
 at most ``max_buffer`` bytes queued towards one client (further frames to that client are dropped and
 counted in :attr:`Hub.dropped`, like a receive-queue overrun; a client that does not read the answers to
