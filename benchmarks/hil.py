@@ -211,11 +211,18 @@ def hub_forward(rounds: int = 2000) -> tuple[float, float]:
     return through_hub, direct
 
 
+def _interruptible() -> None:
+    """In the child before exec: SIGINT as default (a benchmark started in the background inherits it
+    ignored, and then SIGINT could not stop hub and device, which write their statistics on it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(cmd: list[str], ready: str, cpus: str | None = None) -> tuple[subprocess.Popen, str]:
     """Start a process, return it with its first output line containing ``ready``."""
     if cpus:
         cmd = ["taskset", "-c", cpus, *cmd]
-    process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
+    process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
+                               preexec_fn=_interruptible)
     lines = []
     for line in process.stdout:
         lines.append(line)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import signal
 import subprocess
 import sys
 
@@ -98,7 +99,8 @@ def test_realtime_emulate_writes_statistics_with_histogram_and_plot(tmp_path):
     with Hub() as hub:
         process = subprocess.Popen([*QOMNI, "emulate", "--bus", hub.bus_spec(), "--realtime", "--stats",
                                     str(stats), "--cpus", cpus, "--sync-timeout", "1.0"],
-                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                   preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             lines = []
             for line in process.stdout:
@@ -110,7 +112,7 @@ def test_realtime_emulate_writes_statistics_with_histogram_and_plot(tmp_path):
                 for _ in range(200):
                     client.exchange(np.zeros(4))
         finally:
-            process.send_signal(2)
+            process.send_signal(signal.SIGINT)
             out, _ = process.communicate(timeout=30)
     assert process.returncode == 0, out
     summary = json.loads(stats.read_text())
