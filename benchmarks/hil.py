@@ -211,10 +211,20 @@ def hub_forward(rounds: int = 2000) -> tuple[float, float]:
     return through_hub, direct
 
 
+#: SCHED_FIFO priority of hub, master and device (``--rt-priority``), None: normal scheduling.
+RT_PRIORITY: int | None = None
+
+
 def _interruptible() -> None:
     """In the child before exec: SIGINT as default (a benchmark started in the background inherits it
-    ignored, and then SIGINT could not stop hub and device, which write their statistics on it)."""
+    ignored, and then SIGINT could not stop hub and device, which write their statistics on it), and
+    SCHED_FIFO at :data:`RT_PRIORITY` if asked (refused silently: the run's header says whether it held)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if RT_PRIORITY is not None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        except OSError:
+            pass
 
 
 def _start(cmd: list[str], ready: str, cpus: str | None = None) -> tuple[subprocess.Popen, str]:
@@ -263,7 +273,7 @@ def realtime_run(device: str, duration: float, pin: tuple[str, str] | None) -> t
                 master = [sys.executable, __file__, "--master", str(port), "--duration", str(duration),
                           "--stats", str(master_path)]
                 subprocess.run(["taskset", "-c", master_cpus, *master] if master_cpus else master,
-                               check=True, cwd=ROOT)
+                               check=True, cwd=ROOT, preexec_fn=_interruptible)
             finally:
                 _stop(process)
         finally:
@@ -288,6 +298,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="10 s real-time runs and the quick campaign")
     parser.add_argument("--pin", metavar="MASTER_CPUS:DEVICE_CPUS",
                         help="pin hub + master and the device to CPU lists, e.g. 0:1 or 2,3:4,5")
+    parser.add_argument("--rt-priority", type=int, metavar="N",
+                        help="run hub, master and device under SCHED_FIFO at priority N (root or CAP_SYS_NICE)")
     parser.add_argument("--echo", metavar="SPEC", help=argparse.SUPPRESS)
     parser.add_argument("--master", metavar="PORT", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--duration", type=float, help=argparse.SUPPRESS)
@@ -300,6 +312,13 @@ def main() -> None:
         raw_master(args.master, args.duration, args.stats)
         return
     pin = tuple(args.pin.split(":")) if args.pin else None
+    global RT_PRIORITY
+    RT_PRIORITY = args.rt_priority
+    if RT_PRIORITY is not None:
+        from qomni.hil.device.realtime import set_realtime_priority
+
+        print(f"hub, master, device: {set_realtime_priority(RT_PRIORITY)} (checked in this process)")
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))        # the benchmark itself: normal
     duration = 10.0 if args.quick else 60.0
     for noisy in ("can", "asyncio", "hil", "canopen"):      # closed-connection chatter at the end of runs
         logging.getLogger(noisy).setLevel(logging.CRITICAL)
