@@ -11,11 +11,17 @@ only, e.g. ``socketcand:127.0.0.1:29536/can0``.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
+import threading
 from dataclasses import dataclass
 
 import can
+from can.interfaces.socketcand.socketcand import (SocketCanDaemonBus,
+                                                 convert_can_message_to_ascii_message)
+
+from .virtual_bus import InlineVirtualBus
 
 DEFAULT_VIRTUAL_CHANNEL = "qomni"
 _FORBIDDEN = {"udp_multicast": "it sends frames to a non-loopback multicast address"}
@@ -89,6 +95,9 @@ def _socketcand_spec(where: str, bitrate: int | None, spec: str) -> BusSpec:
 def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
     """Open the python-can bus described by ``spec``; ``kwargs`` go to ``can.Bus`` unchanged.
 
+    ``virtual`` opens a :class:`qomni.hil.virtual_bus.InlineVirtualBus` (a python-can ``virtual`` bus,
+    peer of every other ``virtual`` bus of the process on the channel, that can deliver inline).
+
     Raises:
         ValueError: bad spec (see :func:`parse_bus_spec`).
         can.CanError: the interface could not be opened (driver missing, no such device).
@@ -101,7 +110,49 @@ def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
         kwargs.setdefault("host", parsed.host)
         kwargs.setdefault("port", parsed.port)
         kwargs.setdefault("tcp_tune", True)
+        return BatchingSocketcandBus(channel=parsed.channel, **kwargs)
+    if parsed.interface == "virtual":
+        return InlineVirtualBus(channel=parsed.channel, **kwargs)
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
+
+
+class BatchingSocketcandBus(SocketCanDaemonBus):
+    """python-can's ``socketcand`` client that can hand several frames to TCP in one write: inside
+    :meth:`batch`, the frames one thread sends are collected and written together when the block ends (a
+    device's TPDOs of one SYNC: one segment, one wake-up of the hub and of the master, not ten).
+    Frames other threads send meanwhile go out at once, as always."""
+
+    def __init__(self, *args, **kwargs):
+        self._batches = threading.local()
+        super().__init__(*args, **kwargs)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        pending = getattr(self._batches, "pending", None)
+        if pending is None:
+            super().send(msg, timeout)
+        else:
+            pending.append(convert_can_message_to_ascii_message(msg))
+
+    @contextlib.contextmanager
+    def batch(self):
+        """Collect this thread's frames until the block ends, then write them at once (also on error)."""
+        if getattr(self._batches, "pending", None) is not None:      # nested: the outer block writes
+            yield
+            return
+        self._batches.pending = []
+        try:
+            yield
+        finally:
+            pending, self._batches.pending = self._batches.pending, None
+            if pending:
+                self._tcp_send("".join(pending))
+
+
+def batched(bus: can.BusABC):
+    """``bus.batch()`` where the bus can write several frames at once (:class:`BatchingSocketcandBus`),
+    else a block that changes nothing."""
+    batch = getattr(bus, "batch", None)
+    return batch() if batch is not None else contextlib.nullcontext()
 
 
 def _quiet_partial_reads(record: logging.LogRecord) -> bool:

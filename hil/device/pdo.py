@@ -12,6 +12,7 @@ from canopen.sdo import SdoAbortedError
 
 from ..cia import (ABORT_PDO_LENGTH, ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE, COB_ID_EXTENDED,
                    COB_ID_INVALID, EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, OPERATIONAL)
+from ..virtual_bus import data_frame
 from ..pdo_codec import PdoCodec, PdoMappingError, build_codec, check_entry
 
 logger = logging.getLogger(__name__)
@@ -175,7 +176,8 @@ class PdoService:
         """SYNC phase 3 (call with :attr:`lock` held): send the TPDOs due at this SYNC (OPERATIONAL only)."""
         if self.nmt_state != OPERATIONAL:
             return
-        count, values, send = self._sync_count, self.values, self.network.send_message
+        count, values, network = self._sync_count, self.values, self.network
+        bus, lock = network.bus, network.send_lock
         for pdo in self._tpdos:
             trans = pdo.trans_type
             if 1 <= trans <= 240:
@@ -187,7 +189,9 @@ class PdoService:
                 if data == pdo.last_data:
                     continue
                 pdo.last_data = data
-            send(pdo.cob_id, data)
+            frame = data_frame(pdo.cob_id, data)       # canopen's send_message, less its checks
+            with lock:
+                bus.send(frame)
 
     def sync_length_error(self) -> None:
         """Report a SYNC frame with a DLC above 1 (EMCY 0x8240); the SYNC is not processed."""

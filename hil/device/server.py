@@ -19,9 +19,11 @@ Real time (``realtime=True``, for an external master with its own clock): the pl
 per T_s of wall time since :meth:`VehicleServer.start` (tick k is due at t₀ + k·T_s), whether SYNCs
 come or not. A SYNC runs steps 1–4 and then the physics ticks that are due, so that the next SYNC
 finds the physics idle; a pacing thread runs the due ticks when SYNCs are missing. A tick run more
-than one cycle after it was due is counted in :attr:`TimingStats.physics_late`. Python's thread switch
-interval is lowered to 0.2 ms while a real-time server runs (a waiting receive thread otherwise waits
-up to 5 ms for the GIL).
+than one cycle after it was due is counted in :attr:`TimingStats.physics_late`. Ticks are due on the
+monotonic clock (absolute deadlines, no drift). While a real-time server runs, Python's thread switch
+interval is lowered to 0.2 ms (a waiting receive thread otherwise waits up to 5 ms for the GIL) and the
+garbage collector is kept off the cycle (:class:`qomni.hil.device.realtime.QuietCollector`: the heap
+frozen, young objects collected only right after a SYNC has been answered).
 
 Timing statistics (:attr:`VehicleServer.stats`): per SYNC, the latency from the SYNC frame's timestamp
 (python-can ``Message.timestamp``, the bus's receive time) to the moment the last TPDO of that SYNC was
@@ -45,13 +47,15 @@ import can
 import canopen
 import numpy as np
 
-from ..bus import open_bus
+from ..bus import batched, open_bus
+from ..virtual_bus import attach_inline
 from ..cia import EMCY_BUS_OFF
 from .drive402 import Drive402
 from .encoder406 import Encoder406
 from .faults import FaultInjector, FaultPlan, FaultyBus
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 from .plant import Plant
+from .realtime import QuietCollector, sleep_until
 
 logger = logging.getLogger(__name__)
 
@@ -60,6 +64,8 @@ logger = logging.getLogger(__name__)
 REALTIME_SWITCH_INTERVAL = 0.0002
 #: Real time: a physics more than this many ticks behind the wall clock skips ahead.
 RESYNC_TICKS = 50
+#: Bins of the latency histogram, from 0 to 2·T_s (50 µs wide at T_s = 2 ms).
+HISTOGRAM_BINS = 80
 
 
 class TimingStats:
@@ -88,13 +94,22 @@ class TimingStats:
         if latency > self.deadline:
             self.late += 1
 
+    def histogram(self, bins: int = HISTOGRAM_BINS) -> dict:
+        """Latency histogram: {'edges' (s, bins + 1 edges from 0 to 2·T_s), 'counts' (bins), 'above' (SYNCs
+        answered later than 2·T_s)}."""
+        edges = np.linspace(0.0, 2 * self.cycle_time, bins + 1)
+        lat = np.frombuffer(self.latencies, dtype=float)
+        counts, _ = np.histogram(lat, edges)
+        return {"edges": edges.tolist(), "counts": counts.tolist(), "above": int(np.sum(lat > edges[-1]))}
+
     def summary(self) -> dict:
         """{'cycles', 'latency_median', 'latency_p99', 'latency_max' (s), 'late', 'late_fraction',
-        'deadline' (s), 'physics_ticks', 'physics_late'}; latencies are None before the first SYNC."""
+        'deadline' (s), 'physics_ticks', 'physics_late', 'histogram' (:meth:`histogram`)}; latencies are
+        None before the first SYNC."""
         n = len(self.latencies)
         out = {"cycles": n, "deadline": self.deadline, "late": self.late,
                "late_fraction": self.late / n if n else 0.0, "physics_ticks": self.physics_ticks,
-               "physics_late": self.physics_late}
+               "physics_late": self.physics_late, "histogram": self.histogram()}
         if n:
             lat = np.frombuffer(self.latencies, dtype=float)
             out.update(latency_median=float(np.median(lat)), latency_p99=float(np.percentile(lat, 99)),
@@ -196,6 +211,7 @@ class VehicleServer:
         self._stop_event = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._torque = np.zeros(4)
+        self._collector = QuietCollector()
 
     # --------------------------------------------------------- lifecycle
     def start(self) -> "VehicleServer":
@@ -222,6 +238,7 @@ class VehicleServer:
         network.subscribe(SYNC_COB_ID, self._on_sync)
         self.network = network
         network.connect()
+        attach_inline(network)          # an in-process virtual bus: SYNC answered in the sender's thread
         for node in self.nodes:
             node.boot()
         self._stop_event.clear()
@@ -230,7 +247,8 @@ class VehicleServer:
         if self.realtime:
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(REALTIME_SWITCH_INTERVAL)
-            self._t0 = time.perf_counter()
+            self._collector.start()
+            self._t0 = time.monotonic()
             self._physics = threading.Thread(target=self._pace_physics, name="hil-server-physics",
                                              daemon=True)
             self._physics.start()
@@ -248,6 +266,7 @@ class VehicleServer:
             self._physics.join()
             self._physics = None
             sys.setswitchinterval(self._switch_interval)
+            self._collector.stop()
         for node in self.nodes:
             node.shutdown()
         if network.notifier is not None:
@@ -273,18 +292,19 @@ class VehicleServer:
             return
         try:
             with self._lock:
-                self._sync()
-                latency = time.time() - timestamp
+                latency = self._sync() - timestamp
                 if not 0.0 <= latency < 10.0:      # interface without usable receive timestamps
                     latency = 0.0
                 self.stats.record(latency)
             if self.injector is not None:
                 self.injector.poll()
+            self._collector.after_cycle()
         except Exception as exc:          # noqa: BLE001 - canopen would swallow it silently
             self.error = exc
             logger.exception("SYNC processing failed; the server ignores further SYNCs")
 
-    def _sync(self) -> None:
+    def _sync(self) -> float:
+        """Steps 1–5 of the module docstring; returns the time (time.time()) the last TPDO was handed over."""
         now = time.monotonic()
         for node in self.nodes:
             node.sync_receive(now)
@@ -302,18 +322,21 @@ class VehicleServer:
         steering = reading.steering_position.tolist()
         for j, encoder in enumerate(self.encoders):
             encoder.set_position(int(steering[j]))
-        for node in self.nodes:
-            node.sync_transmit()
+        with batched(self.network.bus):            # the SYNC's TPDOs in one write where the bus can
+            for node in self.nodes:
+                node.sync_transmit()
+        sent = time.time()
         self.cycles += 1
         if not self.realtime:
             self.plant.step(self.cycle_time)
         else:
             self._run_due_ticks()
+        return sent
 
     def _run_due_ticks(self) -> None:
         """Real time (lock held): step the plant once per tick that is due by the wall clock."""
         period, stats = self.cycle_time, self.stats
-        elapsed = time.perf_counter() - self._t0
+        elapsed = time.monotonic() - self._t0
         due = int(elapsed / period) - stats.physics_ticks
         if due > RESYNC_TICKS:                     # hopelessly behind (machine suspended): skip ahead
             logger.warning("real-time physics %d cycles behind the wall clock; skipping ahead", due)
@@ -330,8 +353,8 @@ class VehicleServer:
         """Real time: run the due physics ticks when no SYNC did (the master is silent or slow)."""
         period = self.cycle_time
         while not self._stop_event.is_set():
-            elapsed = time.perf_counter() - self._t0
-            time.sleep(max(0.0, (int(elapsed / period) + 1.5) * period - elapsed))  # mid-way between ticks
+            elapsed = time.monotonic() - self._t0
+            sleep_until(self._t0 + (int(elapsed / period) + 1.5) * period)   # mid-way between ticks
             with self._lock:
                 if self.error is not None:
                     return

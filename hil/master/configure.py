@@ -13,6 +13,7 @@ from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ..bus import open_bus
+from ..virtual_bus import attach_inline, data_frame
 from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
                    MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST, supported_mode_bit)
 from ..layout import DRIVE_NODE_IDS, ENCODER_NODE_IDS
@@ -36,12 +37,12 @@ class RecordingNetwork(canopen.Network):
     def send_message(self, can_id: int, data, remote: bool = False) -> None:
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")
-        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                          is_remote_frame=remote)
+        msg = data_frame(can_id, data) if can_id <= 0x7FF and not remote and len(data) <= 8 else \
+            can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF, is_remote_frame=remote)
+        if self.recorder is not None:          # before sending: an in-process bus may deliver the
+            self.recorder.on_transmit(msg)      # answers inline, and they must follow the request in the log
         with self.send_lock:
             self.bus.send(msg)
-        if self.recorder is not None:
-            self.recorder.on_transmit(msg)
         self.check()
 
 
@@ -65,6 +66,7 @@ class ClientConfiguration:
             network.add_node(node)
         self._network = network
         network.connect()
+        attach_inline(network)
 
     def _boot(self) -> None:
         booted: set[int] = set()

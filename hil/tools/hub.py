@@ -23,6 +23,11 @@ Protocol (socketcand, https://github.com/linux-can/socketcand ``doc/protocol.md`
   mode sends a frame; ``< bcmode >`` leaves raw mode; ``< echo >`` → ``< echo >``;
 * anything else → ``< error TEXT >`` (the connection stays open; an over-long element closes it).
 
+Hot path: the frames of one read from a client are forwarded to each other client in one write (a
+device's TPDOs of a SYNC, sent in one write, leave the hub in one write); a well-formed
+``< send ID LEN B… >`` with a standard ID is recognised by one regular expression, every other element
+goes through the full parser with its error answers.
+
 Bounds: at most ``max_clients`` connections (more are told ``< error too many clients >`` and closed),
 at most ``max_buffer`` bytes queued towards one client (further frames to that client are dropped and
 counted in :attr:`Hub.dropped`, like a receive-queue overrun; a client that does not read the answers to
@@ -282,12 +287,25 @@ class Hub:
                     # its next small frame would wait for our (delayed, ~40 ms) acknowledgement.
                     sock.setsockopt(socket.IPPROTO_TCP, quickack, 1)
                 buffer += chunk
+                lines: list[bytes] = []           # frames of this chunk, forwarded in one write per client
+                stamp = _stamp(time.time())
+                start = 0
                 while True:
-                    end = buffer.find(b">")
+                    end = buffer.find(b">", start)
                     if end < 0:
                         break
-                    element, buffer = buffer[:end + 1], buffer[end + 1:]
+                    element, start = buffer[start:end + 1], end + 1
+                    line = self._fast_frame(client, element, stamp)
+                    if line is not None:
+                        lines.append(line)
+                        continue
+                    if lines:
+                        self._forward(client, lines)
+                        lines = []
                     self._handle(client, element)
+                buffer = buffer[start:]
+                if lines:
+                    self._forward(client, lines)
                 if len(buffer) > _MAX_ELEMENT:
                     writer.write(b"< error element too long >")
                     logger.warning("hub: %s sent an element over %d characters, closing", peer, _MAX_ELEMENT)
@@ -366,31 +384,66 @@ class Hub:
         if pending and client.raw and client in self._clients:
             client.writer.write(b"".join(pending))
 
+    def _fast_frame(self, sender: _Client, element: bytes, stamp: str) -> bytes | None:
+        """The ``< frame … >`` line of a well-formed standard-ID data frame ``< send ID LEN B… >`` from a
+        client with an open channel (the hot path: no decoding into words, no error texts); None for
+        every other element, which :meth:`_handle` then answers."""
+        match = _FAST_SEND.fullmatch(element)
+        if match is None or sender.channel is None:
+            return None
+        can_id, length = int(match[1], 16), int(match[2])
+        data = bytes(int(b, 16) for b in match[3].split())
+        if can_id > 0x7FF or len(data) != length:
+            return None
+        self.frames += 1
+        return f"< frame {can_id:03X} {stamp} {data.hex().upper()} >".encode("ascii")
+
     def _broadcast(self, sender: _Client, can_id: int, extended: bool, data: bytes) -> None:
         self.frames += 1
-        now = time.time()
-        sec = int(now)
         ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
-        line = f"< frame {ident} {sec}.{int((now - sec) * 1e6):06d} {data.hex().upper()} >".encode("ascii")
+        self._forward(sender, [f"< frame {ident} {_stamp(time.time())} {data.hex().upper()} >".encode("ascii")])
+
+    def _forward(self, sender: _Client, lines: list[bytes]) -> None:
+        """Hand frame lines (in order) to every other raw-mode client on the sender's channel, in one write
+        per client; a client whose queue cannot take them all gets those that fit, the rest is dropped."""
+        joined, total = (lines[0], len(lines[0])) if len(lines) == 1 else (None, sum(map(len, lines)))
         for client in self._clients:
             if client is sender or not client.raw or client.channel != sender.channel:
                 continue
             if client.pending is not None:
-                if client.pending_bytes + len(line) > self.max_buffer:
+                for line in lines:
+                    if client.pending_bytes + len(line) > self.max_buffer:
+                        self.dropped += 1
+                    else:
+                        client.pending.append(line)
+                        client.pending_bytes += len(line)
+                continue
+            room = self.max_buffer - client.writer.transport.get_write_buffer_size()
+            if total <= room:
+                if joined is None:
+                    joined = b"".join(lines)
+                client.writer.write(joined)
+                continue
+            for line in lines:
+                if len(line) > room:
                     self.dropped += 1
                 else:
-                    client.pending.append(line)
-                    client.pending_bytes += len(line)
-            elif client.writer.transport.get_write_buffer_size() + len(line) > self.max_buffer:
-                self.dropped += 1
-            else:
-                client.writer.write(line)
+                    client.writer.write(line)
+                    room -= len(line)
 
 
 #: What :func:`_parse_send` returns for a remote request (LEN > 0 without data: python-can's client sends
 #: an RTR frame so).
 _REMOTE = "remote"
 _HEX = re.compile(r"[0-9A-Fa-f]{1,8}")
+#: ``< send ID LEN B0 … >`` with a standard (≤ 3 digit) ID and up to 8 data bytes: the hub's hot path.
+_FAST_SEND = re.compile(rb"\s*<\s*send\s+([0-9A-Fa-f]{1,3})\s+([0-8])((?:\s+[0-9A-Fa-f]{1,2}){0,8})\s*>")
+
+
+def _stamp(now: float) -> str:
+    """SEC.USEC of a Unix time (socketcand's frame time stamp)."""
+    sec = int(now)
+    return f"{sec}.{int((now - sec) * 1e6):06d}"
 
 
 def _parse_send(args: list[str]) -> tuple[int, bool, bytes] | str:

@@ -37,7 +37,12 @@ def emulate(
     sync_timeout: float = typer.Option(0.1, help="s without SYNC after which enabled drives fault (0x6007)."),
     lifted: bool = typer.Option(False, help="Chassis jacked up, wheels free."),
     stats: Optional[Path] = typer.Option(None, help="Also write the timing statistics as JSON here "
-                                         "(latencies in s)."),
+                                         "(latencies in s, with a latency histogram) and the histogram "
+                                         "as a PNG beside it (same name, .png)."),
+    cpus: Optional[str] = typer.Option(None, help="Pin the emulator to these CPUs, e.g. '2,3' or '2-3' "
+                                       "(keep the master on others)."),
+    rt_priority: Optional[int] = typer.Option(None, help="Run under SCHED_FIFO at this priority (1-99; "
+                                              "needs root or CAP_SYS_NICE, else a note and normal priority)."),
 ):
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
     from qomni.emulator.vehicle import Emulator
@@ -53,6 +58,15 @@ def emulate(
             fail(f"{name} must be a positive number of seconds, got {value}")
     if stats is not None and not stats.parent.is_dir():
         fail(f"--stats {stats}: the directory {stats.parent} does not exist")
+    from qomni.hil.device.realtime import RealtimeError, parse_cpus, pin_cpus, set_realtime_priority
+
+    try:
+        notes = ([] if cpus is None else [pin_cpus(parse_cpus(cpus))]) + \
+            ([] if rt_priority is None else [set_realtime_priority(rt_priority)])
+    except RealtimeError as exc:
+        fail(str(exc))
+    for note in notes:
+        console.print(note)
     plan = load_faults(faults)
     description = load_description(vehicle)
     kwargs = {} if effects is None else {"effects": load_effects(effects)}
@@ -88,6 +102,12 @@ def emulate(
 
             summary["faults"] = asdict(server.injector.counters)
         write_json(stats, summary)
+        if summary["cycles"]:
+            from qomni.hil.tools.timing_plot import plot_latency_histogram
+
+            plot_latency_histogram(summary, stats.with_suffix(".png"),
+                                   f"{description.name}: {summary['cycles']} SYNCs "
+                                   f"({'real time' if realtime else 'lock-step'})")
     if server.injector is not None:
         c = server.injector.counters
         console.print(f"faults: frames lost rx {c.lost_rx} / tx {c.lost_tx}, SYNC dropped {c.sync_dropped}, "
