@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -76,7 +77,8 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
     """
     out, identifier = _resolve_out(out, fmi_version, model_identifier, spec.default_identifier)
     values, std = _identification_values(identification)
-    variables = spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std)
+    variables = _with_limits(spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std),
+                             spec.input_limits(datasheet))
     return package(spec, out, identifier, fmi_version, variables, spec.description.format(name=datasheet.name),
                    datasheet.drive.cycle_time, compiler)
 
@@ -92,6 +94,17 @@ def export_plant_fmu(identification, datasheet, out, fmi_version: int = 2, **kwa
     (ModelStructure: ``dependencies=""``), any communication step size > 0 is accepted (internal sub-steps,
     see parameter ``max_step``)."""
     return export_fmu(PLANT, identification, datasheet, out, fmi_version, **kwargs)
+
+
+def _with_limits(variables: list, limits: dict[str, tuple[float, float]]) -> list:
+    """The variables with the declared min/max of the bounded inputs; ValueError for an unknown name or an
+    empty range."""
+    inputs = {v.name for v in variables if v.causality == "input"}
+    for name, (low, high) in limits.items():
+        if name not in inputs or not low < high:
+            raise ValueError(f"input limit {name}: ({low}, {high}) names no input or is empty")
+    return [replace(v, min=limits[v.name][0], max=limits[v.name][1]) if v.name in limits else v
+            for v in variables]
 
 
 def _resolve_out(out, fmi_version: int, model_identifier: str | None, default: str) -> tuple[Path, str]:

@@ -16,11 +16,12 @@ static const char *const type_names[] = {"Float64", "Int32", "Boolean"};
 
 #define STATE_MAGIC 0x51464d55u /* "QFMU" */
 #define SERIAL_MAGIC "QOMNIFMU"
-#define SERIAL_VERSION 1u
+#define SERIAL_VERSION 2u
 #define TOKEN_SIZE 64
 
 typedef struct {
     uint32_t magic;
+    FmuMode mode;
     FmuValues values;
 } FmuState;
 
@@ -28,6 +29,7 @@ typedef struct {
     char magic[8];
     uint32_t version;
     uint32_t size;
+    uint32_t mode;
     char token[TOKEN_SIZE];
 } FmuSerialHeader;
 
@@ -270,6 +272,17 @@ static FmuStatus calculate_if_needed(FmuInstance *instance, const FmuVariable *v
     return fmu_error(instance, "cannot calculate the outputs at t = %.17g: %s", instance->values.time, text);
 }
 
+/* A Float64 input must be finite and within its declared range (FMI 2.0 section 2.2.7, FMI 3.0 section
+ * 2.4.7.4: min/max of an input bound the values an importer may set). */
+static FmuStatus check_input_value(FmuInstance *instance, const FmuVariable *v, double value) {
+    if (v->causality != FMU_INPUT) return FMU_OK;
+    if (!isfinite(value)) return fmu_error(instance, "input %s is not finite (got %g)", v->name, value);
+    if (value < v->min || value > v->max)
+        return fmu_error(instance, "input %s = %.17g is outside its declared range [%g, %g]", v->name, value,
+                         v->min, v->max);
+    return FMU_OK;
+}
+
 static FmuStatus check_settable(FmuInstance *instance, const FmuVariable *v) {
     if (instance->mode == FMU_MODE_TERMINATED)
         return fmu_error(instance, "cannot set '%s' in state Terminated", v->name);
@@ -330,7 +343,8 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const uint32_t vr[], size_t n, 
     CHECK_ARGS("SetFloat64")
     for (size_t i = 0; i < n; i++) {
         const FmuVariable *v = lookup(instance, vr[i], FMU_FLOAT64);
-        if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
+        if (!v || check_settable(instance, v) != FMU_OK || check_input_value(instance, v, value[i]) != FMU_OK)
+            return FMU_ERROR;
         instance->values.float64[v->index] = value[i];
         instance->values.dirty = true;
         if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
@@ -380,6 +394,7 @@ FmuStatus fmu_get_state(FmuInstance *instance, void **state) {
         if (!st) return fmu_error(instance, "GetFMUState: out of memory");
     }
     st->magic = STATE_MAGIC;
+    st->mode = instance->mode;
     st->values = instance->values;
     *state = st;
     return FMU_OK;
@@ -391,6 +406,7 @@ FmuStatus fmu_set_state(FmuInstance *instance, const void *state) {
     const FmuState *st = state;
     if (!st || st->magic != STATE_MAGIC) return fmu_error(instance, "SetFMUState: not a state of this FMU");
     instance->values = st->values;
+    instance->mode = st->mode;
     return FMU_OK;
 }
 
@@ -419,6 +435,7 @@ FmuStatus fmu_serialize_state(FmuInstance *instance, const void *state, uint8_t 
     memcpy(header.magic, SERIAL_MAGIC, sizeof header.magic);
     header.version = SERIAL_VERSION;
     header.size = (uint32_t)sizeof(FmuValues);
+    header.mode = (uint32_t)st->mode;
     strncpy(header.token, INSTANTIATION_TOKEN, TOKEN_SIZE - 1);
     memcpy(buffer, &header, sizeof header);
     memcpy(buffer + sizeof header, &st->values, sizeof st->values);
@@ -439,6 +456,9 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], s
         header.size != sizeof(FmuValues) || memcmp(header.token, token, TOKEN_SIZE) != 0)
         return fmu_error(instance, "DeserializeFMUState: the bytes are not a state of this FMU "
                                    "(other model, export or format version)");
+    if (header.mode != FMU_MODE_INSTANTIATED && header.mode != FMU_MODE_INITIALIZATION &&
+        header.mode != FMU_MODE_STEP && header.mode != FMU_MODE_TERMINATED)
+        return fmu_error(instance, "DeserializeFMUState: corrupt state (mode %u)", (unsigned)header.mode);
     FmuState *st = *state;
     if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "DeserializeFMUState: not a state of this FMU");
     if (!st) {
@@ -446,6 +466,7 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], s
         if (!st) return fmu_error(instance, "DeserializeFMUState: out of memory");
     }
     st->magic = STATE_MAGIC;
+    st->mode = (FmuMode)header.mode;
     memcpy(&st->values, buffer + sizeof header, sizeof st->values);
     *state = st;
     return FMU_OK;

@@ -12,8 +12,11 @@
  * is read. A model may have an internal state (N_STATES doubles in config.h, default 0): it is set from
  * the parameters by fmu_model_initialize() (before the first output is read or at the latest in
  * ExitInitializationMode; again after a parameter is set outside Step Mode) and advanced by
- * fmu_model_do_step(). The FMU state (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is the time, all
- * variable values and the internal state.
+ * fmu_model_do_step(). The FMU state (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is the instance's
+ * mode (Instantiated, Initialization, Step, Terminated), the time, all variable values and the internal
+ * state -- everything DoStep reads, so a state set into a freshly instantiated instance (also one
+ * deserialized from a file) can step at once. Inputs are checked when set: a non-finite value, or one
+ * outside the input's declared min/max, is an error and leaves the input unchanged.
  */
 #ifndef FMU_INSTANCE_H
 #define FMU_INSTANCE_H
@@ -30,7 +33,8 @@ typedef enum { FMU_FLOAT64 = 0, FMU_INT32 = 1, FMU_BOOLEAN = 2 } FmuType;
 typedef enum { FMU_INDEPENDENT = 0, FMU_PARAMETER = 1, FMU_INPUT = 2, FMU_OUTPUT = 3 } FmuCausality;
 
 /* One row of the variable table in config.h. index: position in the value array of its type
- * (ignored for the independent variable, which is the time). */
+ * (ignored for the independent variable, which is the time); min, max: the declared range of a Float64
+ * input (-HUGE_VAL, HUGE_VAL where none is declared; a value set outside it is refused). */
 typedef struct {
     uint32_t vr;
     FmuType type;
@@ -38,6 +42,8 @@ typedef struct {
     bool tunable;
     size_t index;
     const char *name;
+    double min;
+    double max;
 } FmuVariable;
 
 #include "config.h"
@@ -146,7 +152,8 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, 
 /* Error for every value reference: the model has no variables of that type. */
 FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size_t n);
 
-/* FMU state: an opaque copy of FmuValues (allocated with the instance's allocator). */
+/* FMU state: an opaque copy of the mode and FmuValues (allocated with the instance's allocator); setting
+ * it restores the mode too. */
 FmuStatus fmu_get_state(FmuInstance *instance, void **state);
 FmuStatus fmu_set_state(FmuInstance *instance, const void *state);
 FmuStatus fmu_free_state(FmuInstance *instance, void **state);

@@ -1,41 +1,14 @@
 /* model.c -- the feed-forward FMU model: glue between the generic FMU core (fmu_instance.h) and the
  * feed-forward law (feedforward.h). The storage indices FF_* come from the generated config.h. */
-#include <math.h>
 #include <stdio.h>
 
 #include "feedforward.h"
 #include "fmu_instance.h"
 
-/* Every real input must be finite, whether the mode k uses it or not: a NaN is an error, never a
- * silently ignored value (modes 3 and 4 fix the steering angles and would not read q.alpha_*). */
-static int check_inputs(const double *x, char *message, size_t size) {
-    static const char *q_names[9] = {"q.x_ch", "q.y_ch", "q.gamma_ch", "q.alpha_l", "q.alpha_r",
-                                     "q.beta_fl", "q.beta_rl", "q.beta_fr", "q.beta_rr"};
-    for (int j = 0; j < 9; j++)
-        if (!isfinite(x[FF_Q + j])) {
-            snprintf(message, size, "input %s is not finite (%g)", q_names[j], x[FF_Q + j]);
-            return -1;
-        }
-    for (int j = 0; j < 2; j++) {
-        if (!isfinite(x[FF_S_DOT + j])) {
-            snprintf(message, size, "input s_dot[%d] is not finite (%g)", j + 1, x[FF_S_DOT + j]);
-            return -1;
-        }
-        if (!isfinite(x[FF_S_DDOT + j])) {
-            snprintf(message, size, "input s_ddot[%d] is not finite (%g)", j + 1, x[FF_S_DDOT + j]);
-            return -1;
-        }
-    }
-    if (!isfinite(x[FF_ALPHA_V])) {
-        snprintf(message, size, "input alpha_v is not finite (%g)", x[FF_ALPHA_V]);
-        return -1;
-    }
-    return 0;
-}
-
+/* Every real input is finite here: the core refuses a non-finite input when it is set (fmu_instance.h),
+ * whether the mode k reads it or not. */
 FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size) {
     const double *x = v->float64;
-    if (check_inputs(x, message, size) != 0) return FMU_ERROR;
     double q_alpha[2] = {x[FF_Q + 3], x[FF_Q + 4]}; /* q = (x_ch, y_ch, gamma_ch, alpha_l, alpha_r, beta...) */
     const char *error = NULL;
     double u[4];
