@@ -21,12 +21,13 @@ import zipfile
 from importlib import resources
 from pathlib import Path
 
+from .platforms import NATIVE, PlatformError, cross_compile, platform
 from .description import build_description_fmi3, model_description_fmi2, model_description_fmi3, xml_bytes
 from .spec import ModelSpec
 from .variables import Variable
 
-BINARY_DIRECTORY = {2: "linux64", 3: "x86_64-linux"}
-"""Platform directory under ``binaries/`` (FMI 2.0 section 2.3, FMI 3.0 section 2.5.1.1)."""
+BINARY_DIRECTORY = {v: NATIVE.directory(v) for v in (2, 3)}
+"""Directory under ``binaries/`` of the native build (FMI 2.0 section 2.3, FMI 3.0 section 2.5.1.1)."""
 
 GENERIC_SOURCES = ("fmu_instance.c", "fmu_instance.h")
 HEADERS = {2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
@@ -125,8 +126,20 @@ def compile_binary(source_dir: Path, c_files: list[str], output: Path, compiler:
 
 
 def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, variables: list[Variable],
-            description: str, step: float, compiler: str | None) -> Path:
-    """Write config.h and modelDescription.xml, copy the sources, compile the binary and zip the FMU."""
+            description: str, step: float, compiler: str | None, platforms: tuple[str, ...] | None = None,
+            extra_files: dict[str, bytes] | None = None) -> Path:
+    """Write config.h and modelDescription.xml, copy the sources, compile the binaries and zip the FMU.
+
+    ``platforms``: None for the native binary (``compiler``, default gcc), else the FMI 3 platform tuples
+    (:data:`qomni.fmu.platforms.PLATFORMS`) to cross-compile for with ``zig cc``. ``extra_files``:
+    {path in the FMU: bytes} added as they are (e.g. ``extra/`` files). Raises FmuExportError.
+    """
+    try:
+        targets = None if platforms is None else [platform(name) for name in dict.fromkeys(platforms)]
+    except PlatformError as exc:
+        raise FmuExportError(str(exc)) from None
+    if targets is not None and not targets:
+        raise FmuExportError("platforms is empty: name at least one platform")
     c_dir = c_source_directory()
     api = f"fmi{fmi_version}Functions.c"
     files: dict[str, str] = {api: (c_dir / api).read_text()}
@@ -157,8 +170,18 @@ def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, varia
         if fmi_version == 3:
             (src / "buildDescription.xml").write_bytes(xml_bytes(build_description_fmi3(identifier, c_files)))
         (root / "modelDescription.xml").write_bytes(xml_bytes(md))
-        compile_binary(src, c_files, root / "binaries" / BINARY_DIRECTORY[fmi_version] / f"{identifier}.so",
-                       compiler)
+        if targets is None:
+            compile_binary(src, c_files, root / "binaries" / BINARY_DIRECTORY[fmi_version] / f"{identifier}.so",
+                           compiler)
+        for target in targets or ():
+            binary = root / "binaries" / target.directory(fmi_version) / f"{identifier}{target.extension}"
+            try:
+                cross_compile(target, src, c_files, binary)
+            except PlatformError as exc:
+                raise FmuExportError(str(exc)) from None
+        for name, data in (extra_files or {}).items():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            (root / name).write_bytes(data)
         out.parent.mkdir(parents=True, exist_ok=True)
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zf:
             for path in sorted(p for p in root.rglob("*") if p.is_file()):
