@@ -184,7 +184,7 @@ def _icr_routines(gen: C99CodeGen, prefix: str) -> list:
 
 
 class ProductPowerPrinter(C99CodePrinter):
-    """C99 printer that writes integer powers as products (``x*x``, ``1.0/(x*x*x)``) instead of ``pow``,
+    """C99 printer that writes integer powers as products (``(x*x)``, ``(1.0/(x*x*x))``) instead of ``pow``,
     so the binaries need no libm symbol newer than glibc 2.17 (glibc 2.29 versioned ``pow``, ``exp`` and
     ``log``: a binary linked against ``pow@GLIBC_2.29`` does not load on older systems) and integer powers
     are exact products rather than a library call. Other powers keep the C99 printer's form."""
@@ -195,8 +195,8 @@ class ProductPowerPrinter(C99CodePrinter):
         exponent = expr.exp
         if exponent.is_Integer and 2 <= abs(int(exponent)) <= self.MAX_FACTORS:
             base = self.parenthesize(expr.base, PRECEDENCE["Mul"], strict=True)
-            product = "*".join([base] * abs(int(exponent)))
-            return product if exponent > 0 else f"1.0/({product})"
+            product = "(" + "*".join([base] * abs(int(exponent))) + ")"  # a Pow binds tighter than a product
+            return product if exponent > 0 else f"(1.0/{product})"
         return super()._print_Pow(expr)
 
 
