@@ -171,7 +171,7 @@ def _routines(gen: C99CodeGen, prefix: str):
         hb = sp.MatrixSymbol("HB", n, 4)
         out.append(gen.routine(f"{prefix}_HB_{k}", sp.Eq(hb, reduced_input_matrix(k)),
                                argument_sequence=_HB_ARGUMENTS + (hb,), global_vars=None))
-    return out + _icr_routines(gen, prefix)
+    return out + _icr_routines(gen, prefix) + _derivative_routines(gen, prefix)
 
 
 def _icr_routines(gen: C99CodeGen, prefix: str) -> list:
@@ -231,7 +231,8 @@ def _mark_unused_arguments(c_code: str) -> str:
 
 
 _BANNER = (" * Feed-forward law (21) of the paper: tau_k = H_k^T Theta p and H_k^T B per motion mode k,\n"
-           " * and the mode-2 ICR relation f_ICR (8) with its inverse. Matrix outputs row-major. */\n")
+           " * the mode-2 ICR relation f_ICR (8) with its inverse, and their exact partial derivatives by\n"
+           " * alpha, alpha_v, s_dot, s_ddot. Matrix outputs row-major. */\n")
 
 
 @cache
@@ -245,7 +246,12 @@ def generate_c(prefix: str = PREFIX, name: str = GENERATED_NAME) -> GeneratedCod
     * ``void <prefix>_HB_<k>(double *alpha, double alpha_v, double *geometry, double i_G,
       double *HB)`` -- H_k^T B (n_k, 4) row-major;
     * ``void <prefix>_f_icr(double alpha_v, double *geometry, double *alpha_out)`` -- (2,);
-    * ``double <prefix>_alpha_v_from_alpha(double *alpha, double *geometry)``.
+    * ``double <prefix>_alpha_v_from_alpha(double *alpha, double *geometry)``;
+    * the exact partial derivatives (:data:`KNOWNS`): ``void <prefix>_dtau_<k>(<as tau>, double *dtau)``
+      (n_k, 7) (:func:`generalized_force_jacobian`), ``void <prefix>_dHB_<k>(<as HB>, double *dHB)``
+      (3 n_k, 4) (:func:`reduced_input_matrix_derivatives`), ``void <prefix>_df_icr(double alpha_v,
+      double *geometry, double *df)`` (2,) and ``void <prefix>_dalpha_v_from_alpha(double *alpha,
+      double *geometry, double *grad)`` (2,) (:func:`icr_derivatives`).
 
     Returns:
         :class:`GeneratedCode` with the ``.c`` (includes ``<name>.h`` and ``math.h``) and ``.h`` texts.
@@ -336,4 +342,55 @@ def _plant_routines(gen: C99CodeGen, prefix: str) -> list:
 __all__ = ["PREFIX", "GENERATED_NAME", "N_GENERALIZED", "ALPHA", "ALPHA_V", "S_DOT", "S_DDOT", "P",
            "GEOMETRY", "I_G", "EPS", "generalized_velocities", "generalized_force",
            "reduced_input_matrix", "f_icr", "alpha_v_from_alpha", "GeneratedCode", "generate_c",
-           "PLANT_PREFIX", "PLANT_GENERATED_NAME", "U", "plant_dynamics", "kinematic_model", "generate_plant_c"]
+           "PLANT_PREFIX", "PLANT_GENERATED_NAME", "U", "plant_dynamics", "kinematic_model", "generate_plant_c",
+           "ProductPowerPrinter", "KNOWNS", "generalized_force_jacobian", "reduced_input_matrix_derivatives",
+           "icr_derivatives"]
+
+
+# --- feed-forward: exact partial derivatives of (21) ------------------------------------------------------
+KNOWNS = (ALPHA[0, 0], ALPHA[1, 0], ALPHA_V, S_DOT[0, 0], S_DOT[1, 0], S_DDOT[0, 0], S_DDOT[1, 0])
+"""The C arguments the derivatives are taken with respect to, in this order (the FMU inputs q.alpha_l,
+q.alpha_r, alpha_v, s_dot[1], s_dot[2], s_ddot[1], s_ddot[2]); (21) reads no other input."""
+
+
+@cache
+def generalized_force_jacobian(k: int) -> sp.ImmutableMatrix:
+    """d tau_k / d(alpha_l, alpha_r, alpha_v, s_dot, s_ddot) of :func:`generalized_force`, shape (n_k, 7),
+    partial derivatives (alpha and alpha_v independent). Raises ValueError for k not in 1..4."""
+    return sp.ImmutableMatrix(sp.Matrix(generalized_force(k)).jacobian(sp.Matrix(KNOWNS)))
+
+
+@cache
+def reduced_input_matrix_derivatives(k: int) -> sp.ImmutableMatrix:
+    """d(H_k^T B) / d(alpha_l, alpha_r, alpha_v) stacked: rows 3 i .. 3 i + 2 ... shape (3 n_k, 4), block
+    j (rows j n_k .. j n_k + n_k - 1) the derivative by the j-th of (alpha_l, alpha_r, alpha_v). Raises
+    ValueError for k not in 1..4."""
+    hb = sp.Matrix(reduced_input_matrix(k))
+    return sp.ImmutableMatrix(sp.Matrix.vstack(*(hb.diff(x) for x in KNOWNS[:3])))
+
+
+@cache
+def icr_derivatives() -> tuple[sp.ImmutableMatrix, sp.ImmutableMatrix]:
+    """(f_ICR'(alpha_v) of (8), shape (2, 1); the gradient of :func:`alpha_v_from_alpha` by (alpha_l,
+    alpha_r), shape (1, 2)): the chain rule of mode 2, where alpha and alpha_v are tied."""
+    grad = sp.Matrix([[alpha_v_from_alpha().diff(ALPHA[0, 0]), alpha_v_from_alpha().diff(ALPHA[1, 0])]])
+    return sp.ImmutableMatrix(sp.Matrix(f_icr()).diff(ALPHA_V)), sp.ImmutableMatrix(grad)
+
+
+def _derivative_routines(gen: C99CodeGen, prefix: str) -> list:
+    out = []
+    for k in S.MODES:
+        n = N_GENERALIZED[k]
+        dtau = sp.MatrixSymbol("dtau", n, len(KNOWNS))
+        out.append(gen.routine(f"{prefix}_dtau_{k}", sp.Eq(dtau, generalized_force_jacobian(k)),
+                               argument_sequence=_MODE_ARGUMENTS + (dtau,), global_vars=None))
+        dhb = sp.MatrixSymbol("dHB", 3 * n, 4)
+        out.append(gen.routine(f"{prefix}_dHB_{k}", sp.Eq(dhb, reduced_input_matrix_derivatives(k)),
+                               argument_sequence=_HB_ARGUMENTS + (dhb,), global_vars=None))
+    df, grad = icr_derivatives()
+    df_out, grad_out = sp.MatrixSymbol("df", 2, 1), sp.MatrixSymbol("grad", 1, 2)
+    out.append(gen.routine(f"{prefix}_df_icr", sp.Eq(df_out, df), argument_sequence=(ALPHA_V, GEOMETRY, df_out),
+                           global_vars=None))
+    out.append(gen.routine(f"{prefix}_dalpha_v_from_alpha", sp.Eq(grad_out, grad),
+                           argument_sequence=(ALPHA, GEOMETRY, grad_out), global_vars=None))
+    return out

@@ -97,7 +97,7 @@ FmuStatus fmu_require_mode(FmuInstance *instance, unsigned mask, const char *fun
 FmuStatus fmu_unsupported(FmuInstance *instance, const char *function) {
     if (!instance) return FMU_ERROR;
     return fmu_error(instance, "%s is not supported by this FMU (Co-Simulation only, no event mode, "
-                               "no clocks, no derivatives)", function);
+                               "no clocks)", function);
 }
 
 /* --- life cycle ------------------------------------------------------------------------------------- */
@@ -380,6 +380,58 @@ FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size
     if (!instance) return FMU_ERROR;
     if (n == 0) return FMU_OK;
     return fmu_error(instance, "this FMU has no variables of type %s", type);
+}
+
+/* --- partial derivatives ------------------------------------------------------------------------------ */
+static const FmuVariable *lookup_causality(FmuInstance *instance, uint32_t vr, FmuCausality causality,
+                                           const char *role, const char *function) {
+    const FmuVariable *v = lookup(instance, vr, FMU_FLOAT64);
+    if (v && v->causality != causality) {
+        fmu_error(instance, "%s: %s '%s' (value reference %u) is not a Float64 %s", function, role, v->name,
+                  (unsigned)vr, causality == FMU_INPUT ? "input" : "output");
+        return NULL;
+    }
+    return v;
+}
+
+FmuStatus fmu_derivatives(FmuInstance *instance, const uint32_t unknowns[], size_t n_unknown,
+                          const uint32_t knowns[], size_t n_known, const double seed[], size_t n_seed,
+                          double sensitivity[], size_t n_sensitivity, bool adjoint, const char *function) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_STEP, function);
+    if (s != FMU_OK) return s;
+    size_t want_seed = adjoint ? n_unknown : n_known, want_sensitivity = adjoint ? n_known : n_unknown;
+    if (n_seed != want_seed || n_sensitivity != want_sensitivity)
+        return fmu_error(instance, "%s: nSeed = %zu and nSensitivity = %zu, expected %zu and %zu", function,
+                         n_seed, n_sensitivity, want_seed, want_sensitivity);
+    if ((n_unknown && !unknowns) || (n_known && !knowns) || (n_seed && !seed) || (n_sensitivity && !sensitivity))
+        return fmu_error(instance, "%s: NULL array argument", function);
+    size_t row[FMU_ARRAY_SIZE(N_FLOAT64)], column[FMU_ARRAY_SIZE(N_FLOAT64)];
+    if (n_unknown > N_FLOAT64 || n_known > N_FLOAT64)
+        return fmu_error(instance, "%s: more unknowns or knowns than Float64 variables", function);
+    for (size_t i = 0; i < n_unknown; i++) {
+        const FmuVariable *v = lookup_causality(instance, unknowns[i], FMU_OUTPUT, "unknown", function);
+        if (!v) return FMU_ERROR;
+        row[i] = v->index;
+    }
+    for (size_t j = 0; j < n_known; j++) {
+        const FmuVariable *v = lookup_causality(instance, knowns[j], FMU_INPUT, "known", function);
+        if (!v) return FMU_ERROR;
+        column[j] = v->index;
+    }
+    if (initialize_if_needed(instance) != FMU_OK) return FMU_ERROR;
+    double J[FMU_ARRAY_SIZE(N_FLOAT64) * FMU_ARRAY_SIZE(N_FLOAT64)];
+    char text[FMU_MESSAGE_SIZE] = "";
+    if (fmu_model_jacobian(&instance->values, J, text, sizeof text) != FMU_OK)
+        return fmu_error(instance, "%s at t = %.17g: %s", function, instance->values.time, text);
+    for (size_t i = 0; i < n_sensitivity; i++) sensitivity[i] = 0.0;
+    for (size_t i = 0; i < n_unknown; i++) {
+        for (size_t j = 0; j < n_known; j++) {
+            double d = J[row[i] * N_FLOAT64 + column[j]];
+            if (adjoint) sensitivity[j] += seed[i] * d;
+            else sensitivity[i] += d * seed[j];
+        }
+    }
+    return FMU_OK;
 }
 
 /* --- FMU state ------------------------------------------------------------------------------------- */

@@ -77,6 +77,10 @@ typedef struct {
 FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size);
 FmuStatus fmu_model_initialize(FmuValues *v, char *message, size_t size);
 FmuStatus fmu_model_do_step(FmuValues *v, double h, char *message, size_t size);
+/*   fmu_model_jacobian: the exact partial derivatives of the Float64 outputs by the Float64 inputs at v:
+ *   J[i * N_FLOAT64 + j] = d float64[i] / d float64[j] for every output i and input j (storage indices;
+ *   other entries are not read). */
+FmuStatus fmu_model_jacobian(FmuValues *v, double *J, char *message, size_t size);
 
 typedef enum {
     FMU_MODE_INSTANTIATED = 1,
@@ -151,6 +155,15 @@ FmuStatus fmu_set_int32(FmuInstance *instance, const uint32_t vr[], size_t n, co
 FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, const bool value[]);
 /* Error for every value reference: the model has no variables of that type. */
 FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size_t n);
+
+/* Partial derivatives of Float64 outputs (unknowns) by Float64 inputs (knowns) at the current values
+ * (FMI 2.0 section 2.1.9, FMI 3.0 section 2.2.11), from fmu_model_jacobian: directional
+ * sensitivity[i] = sum_j J[unknown i, known j] seed[j] (n_seed = n_known, n_sensitivity = n_unknown);
+ * adjoint sensitivity[j] = sum_i seed[i] J[unknown i, known j] (n_seed = n_unknown,
+ * n_sensitivity = n_known). Initialization or Step Mode; any other reference is an error. */
+FmuStatus fmu_derivatives(FmuInstance *instance, const uint32_t unknowns[], size_t n_unknown,
+                          const uint32_t knowns[], size_t n_known, const double seed[], size_t n_seed,
+                          double sensitivity[], size_t n_sensitivity, bool adjoint, const char *function);
 
 /* FMU state: an opaque copy of the mode and FmuValues (allocated with the instance's allocator); setting
  * it restores the mode too. */
