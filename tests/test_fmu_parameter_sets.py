@@ -101,3 +101,29 @@ def test_wide_uncertainty_is_truncated_to_admissible_parameters():
 def test_no_covariance_is_an_error(tmp_path):
     with pytest.raises(ParameterSetError, match="no covariance"):
         sample_parameters(identification(), 10)
+
+
+def test_the_cli_writes_the_archive_beside_the_fmu_and_refuses_a_run_without_covariance(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from qomni.cli import app
+    from pathlib import Path
+
+    import qomni
+
+    DEFAULT_PATH = Path(qomni.__file__).parent / "data" / "prototype_datasheet.toml"
+    ident, *_ = _with_covariance(0.05)
+    (tmp_path / "with").mkdir()
+    (tmp_path / "with" / "identification.json").write_text(json.dumps(ident.to_json_dict()))
+    runner = CliRunner()
+    result = runner.invoke(app, ["export-fmu", str(tmp_path / "with"), "--out", str(tmp_path / "p.fmu"), "--kind",
+                                 "plant", "--vehicle", str(DEFAULT_PATH), "--parameter-sets", "3"])
+    assert result.exit_code == 0, result.output
+    assert read_parameter_sets(tmp_path / "p.ssp")[1].shape == (3, 11)
+    (tmp_path / "without").mkdir()
+    (tmp_path / "without" / "identification.json").write_text(json.dumps(identification().to_json_dict()))
+    result = runner.invoke(app, ["export-fmu", str(tmp_path / "without"), "--out", str(tmp_path / "q.fmu"),
+                                 "--kind", "plant", "--vehicle", str(DEFAULT_PATH), "--parameter-sets", "3"])
+    assert result.exit_code == 2 and "no covariance" in result.output and "Traceback" not in result.output
