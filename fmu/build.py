@@ -2,7 +2,7 @@
 and the zip (FMI 2.0 §2.3, FMI 3.0 §2.5).
 
 The binary is compiled with gcc from the generic FMI layer in ``fmu/c`` (``fmi2Functions.c`` or
-``fmi3Functions.c`` + ``fmu_instance.c``; every FMI function exported, unsupported ones return an error
+``fmi3Functions.c`` + ``fmu_instance.c``, ``fmu_state.c``; every FMI function exported, unsupported ones return an error
 with a log message), the model's C sources (``fmu/c/<model_dir>``), its sympy-generated code and
 ``config.h``, against the FMI headers in ``fmu/c/include`` (copies of the headers shipped with fmpy). All
 sources also go into ``sources/`` of the FMU (FMI 2: listed in ``<SourceFiles>``; FMI 3:
@@ -29,7 +29,7 @@ from .variables import Variable
 BINARY_DIRECTORY = {v: NATIVE.directory(v) for v in (2, 3)}
 """Directory under ``binaries/`` of the native build (FMI 2.0 section 2.3, FMI 3.0 section 2.5.1.1)."""
 
-GENERIC_SOURCES = ("fmu_instance.c", "fmu_instance.h")
+GENERIC_SOURCES = ("fmu_instance.c", "fmu_state.c", "fmu_instance.h")
 HEADERS = {2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
            3: ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
 

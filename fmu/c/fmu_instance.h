@@ -5,7 +5,8 @@
  *                (value reference, type, causality, tunability, storage index) and start values;
  *   model.c   -- implements fmu_model_calculate() (outputs from parameters and inputs).
  * Everything else is generic: this core (fmu_instance.c: variable access by value reference with
- * causality/mode checks, the co-simulation step, FMU state get/set/serialize) and the thin API layers
+ * causality/mode checks, the co-simulation step, partial derivatives; fmu_state.c: FMU state
+ * get/set/serialize) and the thin API layers
  * fmi2Functions.c (FMI 2.0) and fmi3Functions.c (FMI 3.0), which export every FMI function.
  *
  * Outputs are recalculated lazily from the current parameters, inputs and internal state when an output
@@ -131,6 +132,16 @@ void fmu_log(FmuInstance *instance, FmuStatus status, const char *category, cons
     __attribute__((format(printf, 4, 5)))
 #endif
     ;
+
+/* Shared by the core's files: log an error (category logStatusError) and return FMU_ERROR; allocate and
+ * release with the instance's memory functions (calloc/free when the importer gave none). */
+FmuStatus fmu_error(FmuInstance *instance, const char *format, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+void *fmu_allocate(FmuInstance *instance, size_t size);
+void fmu_release(FmuInstance *instance, void *pointer);
 
 /* FMU_OK if the instance is in one of the modes of mask, else log and FMU_ERROR. */
 FmuStatus fmu_require_mode(FmuInstance *instance, unsigned mask, const char *function);
