@@ -20,7 +20,7 @@ https://github.com/modelica-tools/FMUComplianceChecker && cmake ...``).
 Per importer and FMI version it prints whether the FMU loaded and stepped, the largest difference of every
 output to fmpy's over the run, and the wall time as a ratio to fmpy's in the same run. Each importer runs
 in a child process, so one that crashes is an entry of the matrix (libcosimpy 0.0.6 dies in
-``add_local_slave`` on FMI 3 FMUs while reading the model description: the FMU's binary is never loaded).
+``add_local_slave`` on the FMI 3 plant while reading its model description: the binary is never loaded).
 """
 from __future__ import annotations
 

@@ -123,3 +123,18 @@ def test_ecospy_and_fmpy_give_equal_results(fmus, kind, version):
     assert a.shape == b.shape == (N, len(REAL_OUTPUTS) if kind == "plant" else 4)
     assert np.all(np.isfinite(a)) and np.ptp(a, axis=0).max() > 0.1
     np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.skipif(shutil.which("fmutool") is None, reason="needs fmu-manipulation-toolbox (fmutool)")
+@pytest.mark.parametrize("kind", ["plant", "feedforward"])
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_model_descriptions_pass_the_fmi_schema_and_semantic_checks(fmus, kind, version):
+    """The FMU Manipulation Toolbox's checker: the standard's XSD
+    and its semantic rules."""
+    import subprocess
+
+    proc = subprocess.run(["fmutool", "-input", str(fmus[kind, version]), "-check"], capture_output=True,
+                          text=True, timeout=300)
+    text = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and "ERROR" not in text, text
+    assert f"compliant with FMI-{version}.0" in text and f"No semantic error against the FMI-{version}" in text
