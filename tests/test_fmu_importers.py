@@ -129,8 +129,7 @@ def test_ecospy_and_fmpy_give_equal_results(fmus, kind, version):
 @pytest.mark.parametrize("kind", ["plant", "feedforward"])
 @pytest.mark.parametrize("version", [2, 3])
 def test_the_model_descriptions_pass_the_fmi_schema_and_semantic_checks(fmus, kind, version):
-    """The FMU Manipulation Toolbox's checker: the standard's XSD
-    and its semantic rules."""
+    """The FMU Manipulation Toolbox's checker: the standard's XSD and its semantic rules."""
     import subprocess
 
     proc = subprocess.run(["fmutool", "-input", str(fmus[kind, version]), "-check"], capture_output=True,
