@@ -1,9 +1,9 @@
 """Building an FMU from a model spec: ``config.h`` (the C variable table), the sources, the compiled binary
 and the zip (FMI 2.0 §2.3, FMI 3.0 §2.5).
 
-The binary is compiled with gcc from the generic FMI layer in ``fmu/c`` (``fmi2Functions.c`` or
-``fmi3Functions.c`` + ``fmu_instance.c``, ``fmu_state.c``; every FMI function exported, unsupported ones return an error
-with a log message), the model's C sources (``fmu/c/<model_dir>``), its sympy-generated code and
+The binary is compiled with gcc (or, for other platforms, ``zig cc``: :mod:`.platforms`) from the generic
+FMI layer in ``fmu/c`` (``fmi2Functions.c`` or ``fmi3Functions.c`` + ``fmu_instance.c``, ``fmu_state.c``;
+every FMI function exported, unsupported ones return an error with a log message), the model's C sources (``fmu/c/<model_dir>``), its sympy-generated code and
 ``config.h``, against the FMI headers in ``fmu/c/include`` (copies of the headers shipped with fmpy). All
 sources also go into ``sources/`` of the FMU (FMI 2: listed in ``<SourceFiles>``; FMI 3:
 ``sources/buildDescription.xml``), so an importer can rebuild the binary for another platform.
@@ -126,13 +126,11 @@ def compile_binary(source_dir: Path, c_files: list[str], output: Path, compiler:
 
 
 def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, variables: list[Variable],
-            description: str, step: float, compiler: str | None, platforms: tuple[str, ...] | None = None,
-            extra_files: dict[str, bytes] | None = None) -> Path:
+            description: str, step: float, compiler: str | None, platforms: tuple[str, ...] | None = None) -> Path:
     """Write config.h and modelDescription.xml, copy the sources, compile the binaries and zip the FMU.
 
     ``platforms``: None for the native binary (``compiler``, default gcc), else the FMI 3 platform tuples
-    (:data:`qomni.fmu.platforms.PLATFORMS`) to cross-compile for with ``zig cc``. ``extra_files``:
-    {path in the FMU: bytes} added as they are (e.g. ``extra/`` files). Raises FmuExportError.
+    (:data:`qomni.fmu.platforms.PLATFORMS`) to cross-compile for with ``zig cc``. Raises FmuExportError.
     """
     try:
         targets = None if platforms is None else [platform(name) for name in dict.fromkeys(platforms)]
@@ -179,9 +177,6 @@ def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, varia
                 cross_compile(target, src, c_files, binary)
             except PlatformError as exc:
                 raise FmuExportError(str(exc)) from None
-        for name, data in (extra_files or {}).items():
-            (root / name).parent.mkdir(parents=True, exist_ok=True)
-            (root / name).write_bytes(data)
         out.parent.mkdir(parents=True, exist_ok=True)
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zf:
             for path in sorted(p for p in root.rglob("*") if p.is_file()):
