@@ -114,3 +114,4 @@ def test_the_plant_outputs_have_no_direct_dependency_on_the_torques(tmp_path):
                    if v.causality == "output" and v.type == "Float64"]
         sensitivity = s.fmu.getDirectionalDerivative(s.refs(outputs), s.refs(["motor_torque.fl"]), [1.0])
         assert np.all(np.array(sensitivity) == 0.0)
+

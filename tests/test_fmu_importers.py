@@ -59,6 +59,7 @@ def ff_inputs():
     rng = np.random.default_rng(4)
     k = np.repeat([1, 2, 3, 4], -(-N // 4))[:N]
     x = rng.normal(0, 1, (N, 6))
+    x[:, 0:2] = rng.uniform(-1.5, 1.5, (N, 2))  # within the stops (the FMU refuses angles beyond)
     for mode in (2, 3, 4):
         rows = k == mode
         x[rows, 0:2] = (kinematics.f_icr(rng.uniform(-0.5, 0.5, rows.sum()), G) if mode == 2

@@ -1,7 +1,8 @@
-"""The plant FMU as an importer meets it: an FMU state restores the instance's mode (a state set into a
+"""The FMUs as an importer meets them: an FMU state restores the instance's mode (a state set into a
 freshly instantiated instance steps at once, FMI 2.0 §2.1.8 / FMI 3.0 §2.2.6.4), inputs are checked when
-set (non-finite values and torques beyond the data sheet's max_torque are refused, min/max declared), and
-mode transitions happen where the trajectory reaches them, not where the communication grid samples it."""
+set (non-finite values, plant torques beyond the data sheet's max_torque, feed-forward steering angles
+beyond the stops are refused; min/max declared), and the plant's mode transitions happen where the
+trajectory reaches them, not where the communication grid samples it."""
 import shutil
 
 import numpy as np
@@ -13,7 +14,8 @@ from fmpy.fmi1 import FMICallException  # noqa: E402
 
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.fmu.cosim import MOTOR_TORQUE, FmuSlave  # noqa: E402
-from qomni.fmu.export import export_plant_fmu  # noqa: E402
+from qomni.fmu.export import export_feedforward_fmu, export_plant_fmu  # noqa: E402
+from qomni.ident import kinematics  # noqa: E402
 from doubles import identification  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -116,3 +118,17 @@ def test_start_and_stop_of_motion_do_not_depend_on_the_communication_step(plant_
     travel = 1e-8
     bound = np.array([travel, 0.0, travel * SHEET.drive.i_G / SHEET.geometry.r, 1e-12])
     assert np.all(np.abs(coarse - fine) <= bound), (coarse - fine, bound)
+
+
+def test_feedforward_steering_inputs_declare_and_enforce_the_stops(tmp_path, capsys):
+    ff = export_feedforward_fmu(identification(), SHEET, tmp_path / "ff3.fmu", 3)
+    limit, av_max = SHEET.geometry.steering_limit, kinematics.alpha_v_max(SHEET.geometry)
+    ranges = {v.name: (float(v.min), float(v.max)) for v in read_model_description(str(ff)).modelVariables
+              if v.name in ("q.alpha_l", "q.alpha_r", "alpha_v")}
+    assert ranges["q.alpha_l"] == ranges["q.alpha_r"] == (-limit, limit)
+    assert ranges["alpha_v"] == pytest.approx((-av_max, av_max), rel=1e-15)
+    with FmuSlave(ff) as s:
+        s.set({"k": 3, "q.alpha_l": -limit, "q.alpha_r": limit})  # mode 3 sits on the stops
+        with pytest.raises(FMICallException):
+            s.set({"q.alpha_r": limit + 1e-9})
+    assert "outside its declared range" in capsys.readouterr().out
