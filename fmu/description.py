@@ -47,7 +47,7 @@ def model_description_fmi2(variables, identifier, token, description, tool, step
         "canInterpolateInputs": "false", "maxOutputDerivativeOrder": "0", "canRunAsynchronuously": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "false",
         "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
-        "providesDirectionalDerivative": "false"})
+        "providesDirectionalDerivative": "true"})
     files = ET.SubElement(cs, "SourceFiles")
     for name in source_files:
         ET.SubElement(files, "File", name=name)
@@ -79,7 +79,7 @@ def model_description_fmi3(variables, identifier, token, description, tool, step
     ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": identifier, "canHandleVariableCommunicationStepSize": "true",
         "canGetAndSetFMUState": "true", "canSerializeFMUState": "true",
-        "providesDirectionalDerivative": "false", "providesAdjointDerivatives": "false",
+        "providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true",
         "hasEventMode": "false", "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false", "maxOutputDerivativeOrder": "0"})
     _unit_definitions(root, variables)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,7 +45,8 @@ def _check_identifier(identifier: str) -> str:
 
 def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os.PathLike",
                datasheet: "DataSheet", out: str | os.PathLike, fmi_version: int = 2, *,
-               model_identifier: str | None = None, eps: float = DEFAULT_EPS, compiler: str | None = None) -> Path:
+               model_identifier: str | None = None, eps: float = DEFAULT_EPS, compiler: str | None = None,
+               platforms: "tuple[str, ...] | list[str] | None" = None) -> Path:
     """Build a Co-Simulation FMU of ``spec`` with the identified parameters.
 
     Args:
@@ -61,10 +63,15 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
         model_identifier: C identifier of the model and binary; default the file stem of ``out`` if it
             is a C identifier, else ``spec.default_identifier``.
         eps: tanh smoothing of Coulomb friction, rad/s (start value of parameter ``eps``).
-        compiler: C compiler command (default ``$CC`` or ``gcc``).
+        compiler: C compiler command of the native build (default ``$CC`` or ``gcc``).
+        platforms: None for the native linux x86-64 binary; else FMI 3 platform tuples of
+            :data:`qomni.fmu.platforms.PLATFORMS` (``x86_64-linux`` against glibc 2.17, ``aarch64-linux``,
+            ``x86_64-windows``), each cross-compiled from the same sources with ``zig cc`` (package
+            ``ziglang``) into its FMI 2 / FMI 3 binaries directory.
     Returns:
         Path of the written FMU. Its content: ``modelDescription.xml``, ``binaries/linux64/<id>.so``
-        (FMI 2) or ``binaries/x86_64-linux/<id>.so`` (FMI 3), ``sources/`` (all C sources; FMI 3 also
+        (FMI 2) or ``binaries/x86_64-linux/<id>.so`` (FMI 3) (with ``platforms``: one binary per platform,
+        ``<id>.so`` / ``<id>.dll`` in :meth:`Platform.directory`), ``sources/`` (all C sources; FMI 3 also
         ``sources/buildDescription.xml``). The GUID / instantiationToken is a UUID derived from the
         content (same inputs, same token), checked by fmi2Instantiate / fmi3InstantiateCoSimulation.
     Raises:
@@ -72,13 +79,15 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
             non-finite parameters, i_G or eps <= 0.
         TypeError: ``identification`` of a wrong type.
         qomni.ident.rundir.RunDirectoryError: no identification.json at the given path.
-        FmuExportError: compilation failed.
+        FmuExportError: compilation failed, an unknown platform, or ziglang missing for ``platforms``.
     """
     out, identifier = _resolve_out(out, fmi_version, model_identifier, spec.default_identifier)
     values, std = _identification_values(identification)
-    variables = spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std)
+    variables = _with_limits(spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std),
+                             spec.input_limits(datasheet))
     return package(spec, out, identifier, fmi_version, variables, spec.description.format(name=datasheet.name),
-                   datasheet.drive.cycle_time, compiler)
+                   datasheet.drive.cycle_time, compiler,
+                   None if platforms is None else tuple(platforms))
 
 
 def export_feedforward_fmu(identification, datasheet, out, fmi_version: int = 2, **kwargs) -> Path:
@@ -92,6 +101,17 @@ def export_plant_fmu(identification, datasheet, out, fmi_version: int = 2, **kwa
     (ModelStructure: ``dependencies=""``), any communication step size > 0 is accepted (internal sub-steps,
     see parameter ``max_step``)."""
     return export_fmu(PLANT, identification, datasheet, out, fmi_version, **kwargs)
+
+
+def _with_limits(variables: list, limits: dict[str, tuple[float, float]]) -> list:
+    """The variables with the declared min/max of the bounded inputs; ValueError for an unknown name or an
+    empty range."""
+    inputs = {v.name for v in variables if v.causality == "input"}
+    for name, (low, high) in limits.items():
+        if name not in inputs or not low < high:
+            raise ValueError(f"input limit {name}: ({low}, {high}) names no input or is empty")
+    return [replace(v, min=limits[v.name][0], max=limits[v.name][1]) if v.name in limits else v
+            for v in variables]
 
 
 def _resolve_out(out, fmi_version: int, model_identifier: str | None, default: str) -> tuple[Path, str]:

@@ -10,7 +10,9 @@ Variables (value references in this order, time = 0; FMI 2 indices = value refer
   q.beta_fl, q.beta_rl, q.beta_fr, q.beta_rr`` (q; only alpha_l, alpha_r are used by (21)),
   ``s_dot[1], s_dot[2], s_ddot[1], s_ddot[2]`` (s_dot_k, s_ddot_k of (10)-(13); entries beyond n_k
   ignored), ``alpha_v`` (rad; mode 2 only and only if ``use_alpha_v_input``: then
-  alpha = f_ICR(alpha_v), otherwise alpha_v is computed from q.alpha_l, q.alpha_r);
+  alpha = f_ICR(alpha_v), otherwise alpha_v is computed from q.alpha_l, q.alpha_r); q.alpha_l, q.alpha_r
+  declare the stops +-steering_limit and alpha_v +-arctan(l/b) as min/max (:func:`steering_limits`), and a
+  value beyond is refused when set;
 * outputs ``motor_torque.fl, .rl, .fr, .rr``: u of (21), N m, motor side of the gear.
 
 The outputs are a direct-feedthrough algebraic function of the inputs (no internal states), so any
@@ -19,6 +21,8 @@ in 1..4, alpha far from mode 2 in mode 2, ...) make reading the outputs fail wit
 and a log message.
 """
 from __future__ import annotations
+
+import math
 
 from qomni.conventions import EPSILON, PARAMETER_NAMES, WHEELS
 from qomni.ident.symbolic import COORDINATE_NAMES
@@ -123,10 +127,18 @@ FEEDFORWARD_DEPENDENCIES = ("k", "q.alpha_l", "q.alpha_r", "s_dot[1]", "s_dot[2]
 """Inputs every output of the feed-forward FMU depends on directly (ModelStructure)."""
 
 
+def steering_limits(datasheet) -> dict[str, tuple[float, float]]:
+    """The steering inputs' range: q.alpha_l, q.alpha_r within the mechanical stops +-steering_limit of the
+    data sheet, alpha_v within +-arctan(l/b), where mode 2's inner wheel reaches its stop (rad)."""
+    g = datasheet.geometry
+    limit, av_max = float(g.steering_limit), math.atan2(float(g.l), float(g.b))
+    return {"q.alpha_l": (-limit, limit), "q.alpha_r": (-limit, limit), "alpha_v": (-av_max, av_max)}
+
+
 FEEDFORWARD = ModelSpec(
     kind="feedforward", default_identifier="qomni_feedforward", model_dir="feedforward",
     model_sources=("feedforward.c", "feedforward.h", "model.c"), generate=codegen.generate_c,
     variables=feedforward_variables, dependencies=FEEDFORWARD_DEPENDENCIES, config_prefix="FF", n_states=0,
     description=("Feed-forward control (21) of the quasi-omnidirectional platform '{name}': motor torques "
                  "from q, s_dot_k, s_ddot_k and the identified p"),
-    summary="feed-forward law (21)")
+    summary="feed-forward law (21)", input_limits=steering_limits)

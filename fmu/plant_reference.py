@@ -11,7 +11,7 @@ with viscous + tanh-Coulomb friction (16) (sharpness ``eps``), q_dot = H_k s_dot
 integrated from the chassis-frame velocities. The constraint forces A^T lambda take every torque component
 outside the range of H_k.
 
-**The hybrid rules** (checked after every sub-step, with the torques u of the communication step):
+**The hybrid rules** (with the torques u of the communication step; when they are checked: 'Events'):
 
 1. *Rest, k = 1* (the vehicle starts here). The chassis stands still; the steering moves with mode 1's
    dynamics (s_dot_1 = alpha_dot, the wheels roll by H_1's beta rows as they swing about their steering
@@ -39,6 +39,13 @@ outside the range of H_k.
 h_s = min(max_step, 2 / lambda) and lambda = max((d_vl + d_cl/eps)/C_l, (d_vr + d_cr/eps)/C_r,
 (d_vw + d_cw/eps)/B_w), an upper bound of the friction stiffness of every mode, so the result is
 stable for any communication step size and any eps. Torques are held constant over a communication step.
+
+**Events.** A transition due at the start of a sub-step (a torque that changed at the communication point)
+is taken there. Within a sub-step, an event -- a transition becoming due, or a steering stop (mode 2: the
+alpha_v limit) reached -- is located by bisection on the RK4 step length to within 2^-50 of the remaining
+sub-step, taken there, and the rest of the sub-step integrated from that point (at most 8 events per
+sub-step). The switching times thus belong to the trajectory, not to the sub-step grid: the result does
+not depend on the communication step beyond the RK4 truncation error.
 
 State vector (13,): ``x_w, y_w, gamma_ch, alpha_l, alpha_r, alpha_v, beta_fl, beta_rl, beta_fr, beta_rr,
 s_dot[0], s_dot[1], k`` (the C layout, plant.h).
@@ -237,16 +244,17 @@ def _try_engage(y, u, P) -> int:
     return kc
 
 
-def _try_rest(k, y, u, P, v_before) -> int:
+def _rest_due(k, y, u, P, v_start) -> bool:
     alpha = y[ALPHA:ALPHA + 2].copy()
-    av = y[ALPHA_V] if k == 2 else 0.0
-    tau, F, hmax = _chassis_force(k, alpha, av, u, P)
+    tau, F, hmax = _chassis_force(k, alpha, y[ALPHA_V] if k == 2 else 0.0, u, P)
     v = y[SDOT + _chassis_column(k)]
-    slow = hmax * abs(v) < P.omega_rest or v * v_before < 0.0
-    if not (slow and abs(tau) <= F):
-        return k
+    slow = hmax * abs(v) < P.omega_rest or v * v_start < 0.0
+    return slow and abs(tau) <= F
+
+
+def _come_to_rest(k, y, P) -> int:
     if k == 2:
-        f = _H(2, alpha, av, P)[3:5, 0]
+        f = _H(2, y[ALPHA:ALPHA + 2], y[ALPHA_V], P)[3:5, 0]
         y[SDOT:SDOT + 2] = f * y[SDOT]
     else:
         y[SDOT:SDOT + 2] = 0.0
@@ -254,7 +262,16 @@ def _try_rest(k, y, u, P, v_before) -> int:
     return 1
 
 
-def _stops(k, y, P):
+def _transition(k, y, u, P, v_start) -> int:
+    """The mode after the transition due at y (applied to y in place): engaging from rest, coming to rest."""
+    if k == 1:
+        return _try_engage(y, u, P)
+    return _come_to_rest(k, y, P) if _rest_due(k, y, u, P, v_start) else k
+
+
+def _stops(k, y, P, start) -> bool:
+    """Apply the stops to y in place; whether a stop was reached that ``start`` was not at."""
+    reached = False
     if k == 1:
         target = y[ALPHA:ALPHA + 2].copy()
         hit = np.abs(target) > P.steering_limit
@@ -263,14 +280,55 @@ def _stops(k, y, P):
                 target[j] = math.copysign(P.steering_limit, target[j])
                 if y[SDOT + j] * target[j] > 0:
                     y[SDOT + j] = 0.0
+                reached = reached or abs(start[ALPHA + j]) < P.steering_limit
             _set_alpha(y, target, P)
     elif k == 2:
         av_max = kinematics.alpha_v_max(P._g)
         if abs(y[ALPHA_V]) > av_max:
+            reached = abs(start[ALPHA_V]) < av_max
             y[ALPHA_V] = math.copysign(av_max, y[ALPHA_V])
             if y[SDOT] * y[ALPHA_V] > 0:
                 y[SDOT] = 0.0
         y[ALPHA:ALPHA + 2] = _f_icr(y[ALPHA_V], P)
+    return reached
+
+
+def _advance(k, y, u, P, theta):
+    """(y advanced by theta in mode k with the stops applied, whether an event lies within theta)."""
+    k1 = _derivative(k, y, u, P)
+    k2 = _derivative(k, y + 0.5 * theta * k1, u, P)
+    k3 = _derivative(k, y + 0.5 * theta * k2, u, P)
+    k4 = _derivative(k, y + theta * k3, u, P)
+    out = y + theta / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    event = _stops(k, out, P, y)
+    return out, _transition(k, out.copy(), u, P, y[SDOT + _chassis_column(k)]) != k or event
+
+
+MAX_EVENTS = 8
+EVENT_RESOLUTION = 2.0 ** -50
+
+
+def _substep(k, y, u, P, dt):
+    """One sub-step (module docstring, 'Events'); returns (k, y)."""
+    k = _transition(k, y, u, P, y[SDOT + _chassis_column(k)])
+    rest, e = dt, 0
+    while rest > 0.0:
+        v_start = y[SDOT + _chassis_column(k)]
+        nxt, event = _advance(k, y, u, P, rest)
+        if not event or e >= MAX_EVENTS:
+            return _transition(k, nxt, u, P, v_start), nxt
+        lo, hi = 0.0, rest
+        while hi - lo > EVENT_RESOLUTION * rest:
+            mid = lo + 0.5 * (hi - lo)
+            if _advance(k, y, u, P, mid)[1]:
+                hi = mid
+            else:
+                lo = mid
+        y = _advance(k, y, u, P, hi)[0]
+        k = _transition(k, y, u, P, v_start)
+        rest -= hi
+        e += 1
+    return k, y
 
 
 def step(state, u, P: PlantParameters, h: float) -> np.ndarray:
@@ -285,16 +343,8 @@ def step(state, u, P: PlantParameters, h: float) -> np.ndarray:
     y = np.array(state[:K], dtype=float)
     k = int(state[K])
     n = max(1, math.ceil(h / P.substep() - 1e-9))
-    dt = h / n
     for _ in range(n):
-        v_before = y[SDOT + _chassis_column(k)]
-        k1 = _derivative(k, y, u, P)
-        k2 = _derivative(k, y + 0.5 * dt * k1, u, P)
-        k3 = _derivative(k, y + 0.5 * dt * k2, u, P)
-        k4 = _derivative(k, y + dt * k3, u, P)
-        y = y + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        _stops(k, y, P)
-        k = _try_engage(y, u, P) if k == 1 else _try_rest(k, y, u, P, v_before)
+        k, y = _substep(k, y, u, P, h / n)
     return np.append(y, float(k))
 
 

@@ -121,8 +121,15 @@ def plant_variables(p: dict[str, float], geometry, i_G: float, eps: float = DEFA
     return number_variables(out)
 
 
+def motor_torque_limits(datasheet) -> dict[str, tuple[float, float]]:
+    """The torque inputs' range: +-the drives' peak motor-side torque ``max_torque`` of the data sheet (N m,
+    CiA 402 max torque 0x6072), the most a drive of the vehicle delivers."""
+    limit = float(datasheet.drive.max_torque)
+    return {f"motor_torque.{w}": (-limit, limit) for w in WHEELS}
+
+
 PLANT = ModelSpec(
     kind="plant", default_identifier="qomni_plant", model_dir="plant", model_sources=PLANT_SOURCES,
     generate=codegen.generate_plant_c, variables=plant_variables, dependencies=(), config_prefix="PL",
     n_states=PLANT_N_STATES, description=PLANT_DESCRIPTION,
-    summary="plant, reduced dynamics (19)/(20) per motion mode")
+    summary="plant, reduced dynamics (19)/(20) per motion mode", input_limits=motor_torque_limits)

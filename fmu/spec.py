@@ -3,8 +3,8 @@ sources and generated code, its direct dependencies, its internal state size), s
 module (:mod:`.feedforward_spec`, :mod:`.plant_spec`) plus its C code under ``fmu/c/<model_dir>``."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 from .codegen import GeneratedCode
 from .variables import Variable
@@ -27,6 +27,8 @@ class ModelSpec:
         n_states: doubles of internal state the FMU state (get/set/serialize) carries.
         description: modelDescription's description, ``{name}`` = the vehicle's name.
         summary: one line for the CLI.
+        input_limits: ``(datasheet) -> {input name: (min, max)}``, the inputs the vehicle's physics bounds
+            (declared min/max of the variable; the FMU refuses a value set outside it). Default none.
     """
 
     kind: str
@@ -40,3 +42,4 @@ class ModelSpec:
     n_states: int
     description: str
     summary: str
+    input_limits: Callable[[Any], dict[str, tuple[float, float]]] = field(default=lambda datasheet: {})

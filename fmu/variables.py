@@ -19,7 +19,8 @@ class Variable:
     ``type`` is the FMI 3 type name (``Float64``, ``Int32``, ``Boolean``; FMI 2: Real, Integer,
     Boolean). ``group``: name of the ``FF_<GROUP>`` (plant: ``PL_<GROUP>``) macro in ``config.h`` that holds the storage index
     of the group's first variable (groups are contiguous). ``vr`` is the value reference, ``index`` the
-    position in the value array of its type (both assigned by :func:`number_variables`).
+    position in the value array of its type (both assigned by :func:`number_variables`). ``min``/``max``: the
+    declared range (FMI 2.0 §2.2.7, FMI 3.0 §2.4.7.4); the FMU refuses a Float64 input set outside it.
     """
 
     name: str
@@ -30,8 +31,8 @@ class Variable:
     start: float | int | bool | None = None
     unit: str | None = None
     group: str | None = None
-    min: int | None = None
-    max: int | None = None
+    min: float | int | None = None
+    max: float | int | None = None
     vr: int = -1
     index: int = -1
 

@@ -259,10 +259,9 @@ def test_initial_state_parameters(fmus):
 @pytest.mark.parametrize("version", [2, 3])
 def test_bad_input_and_initial_state_are_errors(fmus, version, capsys):
     with FmuSlave(fmus[version]) as s:
-        s.set_real(s.refs(MOTOR_TORQUE), [np.nan, 0, 0, 0])
         with pytest.raises(FMICallException):
-            s.step(0.002)
-    assert "motor torques must be finite" in capsys.readouterr().out
+            s.set_real(s.refs(MOTOR_TORQUE), [np.nan, 0, 0, 0])
+    assert "input motor_torque.fl is not finite" in capsys.readouterr().out
     with pytest.raises(FMICallException):
         FmuSlave(fmus[version], {"alpha_l0": 2.0})
     assert "within the stops" in capsys.readouterr().out

@@ -172,12 +172,12 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     return status2(fmu_deserialize_state(INSTANCE, (const uint8_t *)serializedState, size, FMUstate));
 }
 
-/* ---- 2.1.9 partial derivatives (not provided: providesDirectionalDerivative="false") -------------- */
+/* ---- 2.1.9 partial derivatives (outputs by inputs, exact: fmu_model_jacobian) ---------------------- */
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
                                         size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown, (void)dvUnknown;
-    return status2(fmu_unsupported(INSTANCE, "fmi2GetDirectionalDerivative"));
+    return status2(fmu_derivatives(INSTANCE, vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown, nKnown, dvUnknown,
+                                   nUnknown, false, "fmi2GetDirectionalDerivative"));
 }
 
 /* ---- chapter 3 Model Exchange (not supported) ------------------------------------------------------ */

@@ -257,23 +257,21 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte seriali
     return status3(fmu_deserialize_state(INSTANCE, serializedState, size, FMUState));
 }
 
-/* ---- 2.3.8 partial derivatives (not provided) ---------------------------------------------------- */
+/* ---- 2.3.8 partial derivatives (outputs by inputs, exact: fmu_model_jacobian) ---------------------- */
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],
                                         size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
                                         const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
                                         size_t nSensitivity) {
-    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed;
-    (void)sensitivity, (void)nSensitivity;
-    return status3(fmu_unsupported(INSTANCE, "fmi3GetDirectionalDerivative"));
+    return status3(fmu_derivatives(INSTANCE, unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity,
+                                   nSensitivity, false, "fmi3GetDirectionalDerivative"));
 }
 
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[],
                                     size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
                                     const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
                                     size_t nSensitivity) {
-    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed;
-    (void)sensitivity, (void)nSensitivity;
-    return status3(fmu_unsupported(INSTANCE, "fmi3GetAdjointDerivative"));
+    return status3(fmu_derivatives(INSTANCE, unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity,
+                                   nSensitivity, true, "fmi3GetAdjointDerivative"));
 }
 
 /* ---- 2.3.3 configuration mode (no structural parameters) ------------------------------------------- */

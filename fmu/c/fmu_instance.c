@@ -14,29 +14,12 @@ static const bool fmu_boolean_start[FMU_ARRAY_SIZE(N_BOOLEAN)] = FMU_BOOLEAN_STA
 
 static const char *const type_names[] = {"Float64", "Int32", "Boolean"};
 
-#define STATE_MAGIC 0x51464d55u /* "QFMU" */
-#define SERIAL_MAGIC "QOMNIFMU"
-#define SERIAL_VERSION 1u
-#define TOKEN_SIZE 64
-
-typedef struct {
-    uint32_t magic;
-    FmuValues values;
-} FmuState;
-
-typedef struct {
-    char magic[8];
-    uint32_t version;
-    uint32_t size;
-    char token[TOKEN_SIZE];
-} FmuSerialHeader;
-
 /* --- memory and logging --------------------------------------------------------------------------- */
-static void *fmu_allocate(FmuInstance *instance, size_t size) {
+void *fmu_allocate(FmuInstance *instance, size_t size) {
     return instance->allocate ? instance->allocate(1, size) : calloc(1, size);
 }
 
-static void fmu_release(FmuInstance *instance, void *pointer) {
+void fmu_release(FmuInstance *instance, void *pointer) {
     if (!pointer) return;
     if (instance->release) instance->release(pointer);
     else free(pointer);
@@ -57,13 +40,7 @@ void fmu_log(FmuInstance *instance, FmuStatus status, const char *category, cons
     deliver(instance->logger, instance->callback, instance->environment, instance->name, status, category, instance->message);
 }
 
-static FmuStatus fmu_error(FmuInstance *instance, const char *format, ...)
-#if defined(__GNUC__)
-    __attribute__((format(printf, 2, 3)))
-#endif
-    ;
-
-static FmuStatus fmu_error(FmuInstance *instance, const char *format, ...) {
+FmuStatus fmu_error(FmuInstance *instance, const char *format, ...) {
     va_list args;
     va_start(args, format);
     vsnprintf(instance->message, sizeof instance->message, format, args);
@@ -95,7 +72,7 @@ FmuStatus fmu_require_mode(FmuInstance *instance, unsigned mask, const char *fun
 FmuStatus fmu_unsupported(FmuInstance *instance, const char *function) {
     if (!instance) return FMU_ERROR;
     return fmu_error(instance, "%s is not supported by this FMU (Co-Simulation only, no event mode, "
-                               "no clocks, no derivatives)", function);
+                               "no clocks)", function);
 }
 
 /* --- life cycle ------------------------------------------------------------------------------------- */
@@ -270,6 +247,17 @@ static FmuStatus calculate_if_needed(FmuInstance *instance, const FmuVariable *v
     return fmu_error(instance, "cannot calculate the outputs at t = %.17g: %s", instance->values.time, text);
 }
 
+/* A Float64 input must be finite and within its declared range (FMI 2.0 section 2.2.7, FMI 3.0 section
+ * 2.4.7.4: min/max of an input bound the values an importer may set). */
+static FmuStatus check_input_value(FmuInstance *instance, const FmuVariable *v, double value) {
+    if (v->causality != FMU_INPUT) return FMU_OK;
+    if (!isfinite(value)) return fmu_error(instance, "input %s is not finite (got %g)", v->name, value);
+    if (value < v->min || value > v->max)
+        return fmu_error(instance, "input %s = %.17g is outside its declared range [%g, %g]", v->name, value,
+                         v->min, v->max);
+    return FMU_OK;
+}
+
 static FmuStatus check_settable(FmuInstance *instance, const FmuVariable *v) {
     if (instance->mode == FMU_MODE_TERMINATED)
         return fmu_error(instance, "cannot set '%s' in state Terminated", v->name);
@@ -330,7 +318,8 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const uint32_t vr[], size_t n, 
     CHECK_ARGS("SetFloat64")
     for (size_t i = 0; i < n; i++) {
         const FmuVariable *v = lookup(instance, vr[i], FMU_FLOAT64);
-        if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
+        if (!v || check_settable(instance, v) != FMU_OK || check_input_value(instance, v, value[i]) != FMU_OK)
+            return FMU_ERROR;
         instance->values.float64[v->index] = value[i];
         instance->values.dirty = true;
         if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
@@ -368,85 +357,54 @@ FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size
     return fmu_error(instance, "this FMU has no variables of type %s", type);
 }
 
-/* --- FMU state ------------------------------------------------------------------------------------- */
-FmuStatus fmu_get_state(FmuInstance *instance, void **state) {
-    FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "GetFMUState");
-    if (s != FMU_OK) return s;
-    if (!state) return fmu_error(instance, "GetFMUState: state pointer is NULL");
-    FmuState *st = *state;
-    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "GetFMUState: not a state of this FMU");
-    if (!st) {
-        st = fmu_allocate(instance, sizeof *st);
-        if (!st) return fmu_error(instance, "GetFMUState: out of memory");
+/* --- partial derivatives ------------------------------------------------------------------------------ */
+static const FmuVariable *lookup_causality(FmuInstance *instance, uint32_t vr, FmuCausality causality,
+                                           const char *role, const char *function) {
+    const FmuVariable *v = lookup(instance, vr, FMU_FLOAT64);
+    if (v && v->causality != causality) {
+        fmu_error(instance, "%s: %s '%s' (value reference %u) is not a Float64 %s", function, role, v->name,
+                  (unsigned)vr, causality == FMU_INPUT ? "input" : "output");
+        return NULL;
     }
-    st->magic = STATE_MAGIC;
-    st->values = instance->values;
-    *state = st;
-    return FMU_OK;
+    return v;
 }
 
-FmuStatus fmu_set_state(FmuInstance *instance, const void *state) {
-    FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "SetFMUState");
+FmuStatus fmu_derivatives(FmuInstance *instance, const uint32_t unknowns[], size_t n_unknown,
+                          const uint32_t knowns[], size_t n_known, const double seed[], size_t n_seed,
+                          double sensitivity[], size_t n_sensitivity, bool adjoint, const char *function) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_STEP, function);
     if (s != FMU_OK) return s;
-    const FmuState *st = state;
-    if (!st || st->magic != STATE_MAGIC) return fmu_error(instance, "SetFMUState: not a state of this FMU");
-    instance->values = st->values;
-    return FMU_OK;
-}
-
-FmuStatus fmu_free_state(FmuInstance *instance, void **state) {
-    if (!instance) return FMU_ERROR;
-    if (!state || !*state) return FMU_OK;
-    FmuState *st = *state;
-    if (st->magic != STATE_MAGIC) return fmu_error(instance, "FreeFMUState: not a state of this FMU");
-    st->magic = 0;
-    fmu_release(instance, st);
-    *state = NULL;
-    return FMU_OK;
-}
-
-size_t fmu_serialized_state_size(void) { return sizeof(FmuSerialHeader) + sizeof(FmuValues); }
-
-FmuStatus fmu_serialize_state(FmuInstance *instance, const void *state, uint8_t buffer[], size_t size) {
-    if (!instance) return FMU_ERROR;
-    const FmuState *st = state;
-    if (!st || st->magic != STATE_MAGIC) return fmu_error(instance, "SerializeFMUState: not a state of this FMU");
-    if (!buffer || size < fmu_serialized_state_size())
-        return fmu_error(instance, "SerializeFMUState: buffer of %zu bytes, need %zu", size,
-                         fmu_serialized_state_size());
-    FmuSerialHeader header;
-    memset(&header, 0, sizeof header);
-    memcpy(header.magic, SERIAL_MAGIC, sizeof header.magic);
-    header.version = SERIAL_VERSION;
-    header.size = (uint32_t)sizeof(FmuValues);
-    strncpy(header.token, INSTANTIATION_TOKEN, TOKEN_SIZE - 1);
-    memcpy(buffer, &header, sizeof header);
-    memcpy(buffer + sizeof header, &st->values, sizeof st->values);
-    return FMU_OK;
-}
-
-FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], size_t size, void **state) {
-    if (!instance) return FMU_ERROR;
-    if (!buffer || !state) return fmu_error(instance, "DeserializeFMUState: NULL argument");
-    if (size != fmu_serialized_state_size())
-        return fmu_error(instance, "DeserializeFMUState: %zu bytes, expected %zu", size,
-                         fmu_serialized_state_size());
-    FmuSerialHeader header;
-    memcpy(&header, buffer, sizeof header);
-    char token[TOKEN_SIZE] = "";
-    strncpy(token, INSTANTIATION_TOKEN, TOKEN_SIZE - 1);
-    if (memcmp(header.magic, SERIAL_MAGIC, sizeof header.magic) != 0 || header.version != SERIAL_VERSION ||
-        header.size != sizeof(FmuValues) || memcmp(header.token, token, TOKEN_SIZE) != 0)
-        return fmu_error(instance, "DeserializeFMUState: the bytes are not a state of this FMU "
-                                   "(other model, export or format version)");
-    FmuState *st = *state;
-    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "DeserializeFMUState: not a state of this FMU");
-    if (!st) {
-        st = fmu_allocate(instance, sizeof *st);
-        if (!st) return fmu_error(instance, "DeserializeFMUState: out of memory");
+    size_t want_seed = adjoint ? n_unknown : n_known, want_sensitivity = adjoint ? n_known : n_unknown;
+    if (n_seed != want_seed || n_sensitivity != want_sensitivity)
+        return fmu_error(instance, "%s: nSeed = %zu and nSensitivity = %zu, expected %zu and %zu", function,
+                         n_seed, n_sensitivity, want_seed, want_sensitivity);
+    if ((n_unknown && !unknowns) || (n_known && !knowns) || (n_seed && !seed) || (n_sensitivity && !sensitivity))
+        return fmu_error(instance, "%s: NULL array argument", function);
+    size_t row[FMU_ARRAY_SIZE(N_FLOAT64)], column[FMU_ARRAY_SIZE(N_FLOAT64)];
+    if (n_unknown > N_FLOAT64 || n_known > N_FLOAT64)
+        return fmu_error(instance, "%s: more unknowns or knowns than Float64 variables", function);
+    for (size_t i = 0; i < n_unknown; i++) {
+        const FmuVariable *v = lookup_causality(instance, unknowns[i], FMU_OUTPUT, "unknown", function);
+        if (!v) return FMU_ERROR;
+        row[i] = v->index;
     }
-    st->magic = STATE_MAGIC;
-    memcpy(&st->values, buffer + sizeof header, sizeof st->values);
-    *state = st;
+    for (size_t j = 0; j < n_known; j++) {
+        const FmuVariable *v = lookup_causality(instance, knowns[j], FMU_INPUT, "known", function);
+        if (!v) return FMU_ERROR;
+        column[j] = v->index;
+    }
+    if (initialize_if_needed(instance) != FMU_OK) return FMU_ERROR;
+    double J[FMU_ARRAY_SIZE(N_FLOAT64) * FMU_ARRAY_SIZE(N_FLOAT64)];
+    char text[FMU_MESSAGE_SIZE] = "";
+    if (fmu_model_jacobian(&instance->values, J, text, sizeof text) != FMU_OK)
+        return fmu_error(instance, "%s at t = %.17g: %s", function, instance->values.time, text);
+    for (size_t i = 0; i < n_sensitivity; i++) sensitivity[i] = 0.0;
+    for (size_t i = 0; i < n_unknown; i++) {
+        for (size_t j = 0; j < n_known; j++) {
+            double d = J[row[i] * N_FLOAT64 + column[j]];
+            if (adjoint) sensitivity[j] += seed[i] * d;
+            else sensitivity[i] += d * seed[j];
+        }
+    }
     return FMU_OK;
 }

@@ -5,15 +5,19 @@
  *                (value reference, type, causality, tunability, storage index) and start values;
  *   model.c   -- implements fmu_model_calculate() (outputs from parameters and inputs).
  * Everything else is generic: this core (fmu_instance.c: variable access by value reference with
- * causality/mode checks, the co-simulation step, FMU state get/set/serialize) and the thin API layers
+ * causality/mode checks, the co-simulation step, partial derivatives; fmu_state.c: FMU state
+ * get/set/serialize) and the thin API layers
  * fmi2Functions.c (FMI 2.0) and fmi3Functions.c (FMI 3.0), which export every FMI function.
  *
  * Outputs are recalculated lazily from the current parameters, inputs and internal state when an output
  * is read. A model may have an internal state (N_STATES doubles in config.h, default 0): it is set from
  * the parameters by fmu_model_initialize() (before the first output is read or at the latest in
  * ExitInitializationMode; again after a parameter is set outside Step Mode) and advanced by
- * fmu_model_do_step(). The FMU state (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is the time, all
- * variable values and the internal state.
+ * fmu_model_do_step(). The FMU state (FMI 2.0 section 2.1.8, FMI 3.0 section 2.2.6.4) is the instance's
+ * mode (Instantiated, Initialization, Step, Terminated), the time, all variable values and the internal
+ * state -- everything DoStep reads, so a state set into a freshly instantiated instance (also one
+ * deserialized from a file) can step at once. Inputs are checked when set: a non-finite value, or one
+ * outside the input's declared min/max, is an error and leaves the input unchanged.
  */
 #ifndef FMU_INSTANCE_H
 #define FMU_INSTANCE_H
@@ -30,7 +34,8 @@ typedef enum { FMU_FLOAT64 = 0, FMU_INT32 = 1, FMU_BOOLEAN = 2 } FmuType;
 typedef enum { FMU_INDEPENDENT = 0, FMU_PARAMETER = 1, FMU_INPUT = 2, FMU_OUTPUT = 3 } FmuCausality;
 
 /* One row of the variable table in config.h. index: position in the value array of its type
- * (ignored for the independent variable, which is the time). */
+ * (ignored for the independent variable, which is the time); min, max: the declared range of a Float64
+ * input (-HUGE_VAL, HUGE_VAL where none is declared; a value set outside it is refused). */
 typedef struct {
     uint32_t vr;
     FmuType type;
@@ -38,6 +43,8 @@ typedef struct {
     bool tunable;
     size_t index;
     const char *name;
+    double min;
+    double max;
 } FmuVariable;
 
 #include "config.h"
@@ -71,6 +78,10 @@ typedef struct {
 FmuStatus fmu_model_calculate(FmuValues *v, char *message, size_t size);
 FmuStatus fmu_model_initialize(FmuValues *v, char *message, size_t size);
 FmuStatus fmu_model_do_step(FmuValues *v, double h, char *message, size_t size);
+/*   fmu_model_jacobian: the exact partial derivatives of the Float64 outputs by the Float64 inputs at v:
+ *   J[i * N_FLOAT64 + j] = d float64[i] / d float64[j] for every output i and input j (storage indices;
+ *   other entries are not read). */
+FmuStatus fmu_model_jacobian(FmuValues *v, double *J, char *message, size_t size);
 
 typedef enum {
     FMU_MODE_INSTANTIATED = 1,
@@ -122,6 +133,16 @@ void fmu_log(FmuInstance *instance, FmuStatus status, const char *category, cons
 #endif
     ;
 
+/* Shared by the core's files: log an error (category logStatusError) and return FMU_ERROR; allocate and
+ * release with the instance's memory functions (calloc/free when the importer gave none). */
+FmuStatus fmu_error(FmuInstance *instance, const char *format, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+void *fmu_allocate(FmuInstance *instance, size_t size);
+void fmu_release(FmuInstance *instance, void *pointer);
+
 /* FMU_OK if the instance is in one of the modes of mask, else log and FMU_ERROR. */
 FmuStatus fmu_require_mode(FmuInstance *instance, unsigned mask, const char *function);
 /* Log "function is not supported by this FMU" and return FMU_ERROR. */
@@ -146,7 +167,17 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, 
 /* Error for every value reference: the model has no variables of that type. */
 FmuStatus fmu_no_variables_of_type(FmuInstance *instance, const char *type, size_t n);
 
-/* FMU state: an opaque copy of FmuValues (allocated with the instance's allocator). */
+/* Partial derivatives of Float64 outputs (unknowns) by Float64 inputs (knowns) at the current values
+ * (FMI 2.0 section 2.1.9, FMI 3.0 section 2.2.11), from fmu_model_jacobian: directional
+ * sensitivity[i] = sum_j J[unknown i, known j] seed[j] (n_seed = n_known, n_sensitivity = n_unknown);
+ * adjoint sensitivity[j] = sum_i seed[i] J[unknown i, known j] (n_seed = n_unknown,
+ * n_sensitivity = n_known). Initialization or Step Mode; any other reference is an error. */
+FmuStatus fmu_derivatives(FmuInstance *instance, const uint32_t unknowns[], size_t n_unknown,
+                          const uint32_t knowns[], size_t n_known, const double seed[], size_t n_seed,
+                          double sensitivity[], size_t n_sensitivity, bool adjoint, const char *function);
+
+/* FMU state: an opaque copy of the mode and FmuValues (allocated with the instance's allocator); setting
+ * it restores the mode too. */
 FmuStatus fmu_get_state(FmuInstance *instance, void **state);
 FmuStatus fmu_set_state(FmuInstance *instance, const void *state);
 FmuStatus fmu_free_state(FmuInstance *instance, void **state);

@@ -21,6 +21,14 @@ def export_fmu(
                                                  "desired motion) or 'plant' (the vehicle: motor torques in, "
                                                  "pose, steering, encoders and mode k out)."),
     vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
+    platform: Optional[list[str]] = typer.Option(
+        None, "--platform", help="Cross-compile for this FMI 3 platform tuple with zig cc (repeatable): "
+                                 "x86_64-linux (glibc 2.17), aarch64-linux, x86_64-windows. Default: the "
+                                 "native linux x86-64 binary (gcc)."),
+    parameter_sets: int = typer.Option(0, "--parameter-sets", min=0,
+                                       help="Also write OUT.ssp: the FMU with this many parameter sets (SSV) "
+                                            "sampled from the identified covariance (0: none)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the parameter-set sampling."),
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
     from qomni.fmu.export import MODELS, FmuExportError, export_fmu
@@ -40,8 +48,17 @@ def export_fmu(
         sheet = guarded(lambda: datasheet_from_metadata(json.loads(meta.read_text()), str(meta)))
     result = guarded(lambda: load_identification(source))
     try:
-        path = export_fmu(MODELS[kind], result, sheet, out, fmi_version=fmi)
+        path = export_fmu(MODELS[kind], result, sheet, out, fmi_version=fmi, platforms=platform or None)
     except (FmuExportError, ValueError) as exc:
         fail(str(exc))
-    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {MODELS[kind].summary})")
+    where = ", ".join(platform) if platform else "x86_64-linux"
+    console.print(f"written {path} (FMI {fmi}.0 Co-Simulation, {MODELS[kind].summary}; binaries: {where})")
+    if parameter_sets:
+        from qomni.fmu.parameter_sets import ParameterSetError, write_parameter_sets
+
+        try:
+            ssp = write_parameter_sets(result, path, path.with_suffix(".ssp"), parameter_sets, seed)
+        except ParameterSetError as exc:
+            fail(str(exc))
+        console.print(f"written {ssp} (SSP: the FMU, the nominal set and {parameter_sets} sampled parameter sets)")
 

@@ -32,6 +32,20 @@ int qomni_feedforward(int k, const double alpha[2], double alpha_v, bool alpha_v
                       const double s_ddot[2], const double p[QOMNI_FF_N_PARAMETERS], const double geometry[4],
                       double i_G, double eps, double u[4], const char **error);
 
+#define QOMNI_FF_N_KNOWNS 7
+
+/* Exact Jacobian J (4 x QOMNI_FF_N_KNOWNS, row-major) of the motor torques u of qomni_feedforward by the
+ * knowns (alpha_l, alpha_r, alpha_v, s_dot[1], s_dot[2], s_ddot[1], s_ddot[2]) at the same arguments,
+ * from the sympy-generated partial derivatives of tau_k and H_k^T B and the derivative of the
+ * pseudoinverse on the branch qomni_ff_pinv_apply takes. Mode 2 ties alpha and alpha_v: with
+ * alpha_v_given the column of alpha_v carries d/d alpha_v through f_ICR (8) and those of alpha are 0;
+ * otherwise the alpha columns carry alpha_v(alpha) and that of alpha_v is 0. Modes 1, 3, 4 read no
+ * alpha_v (0 column). Returns as qomni_feedforward (also 1 for a non-finite derivative). */
+int qomni_feedforward_jacobian(int k, const double alpha[2], double alpha_v, bool alpha_v_given,
+                               const double s_dot[2], const double s_ddot[2], const double p[QOMNI_FF_N_PARAMETERS],
+                               const double geometry[4], double i_G, double eps,
+                               double J[4 * QOMNI_FF_N_KNOWNS], const char **error);
+
 /* u = M^+ tau for M of shape n x 4 (row-major), n = 1 or 2. */
 void qomni_ff_pinv_apply(int n, const double *M, const double *tau, double u[4]);
 

@@ -280,18 +280,21 @@ static void try_engage(Model *m, double *y, int *k, const double u[4]) {
     *k = kc;
 }
 
-/* mode k -> 1: the chassis rate is below omega_rest (wheel side) or crossed zero during the sub-step
- * while the drive force does not exceed the static Coulomb level. */
-static void try_rest(Model *m, double *y, int *k, const double u[4], double v_before) {
-    double alpha[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]}, av = *k == 2 ? y[PS_ALPHA_V] : 0.0;
+/* mode k -> 1: the chassis rate is below omega_rest (wheel side) or crossed zero since the start of the
+ * sub-step (rate v_start) while the drive force does not exceed the static Coulomb level. */
+static bool rest_due(Model *m, const double *y, int k, const double u[4], double v_start) {
+    double alpha[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]}, av = k == 2 ? y[PS_ALPHA_V] : 0.0;
     double tau, F, hmax;
-    chassis_force(m, *k, alpha, av, u, &tau, &F, &hmax);
-    double v = y[PS_SDOT + chassis_column(*k)];
-    bool slow = hmax * fabs(v) < m->P->omega_rest || v * v_before < 0.0;
-    if (!(slow && fabs(tau) <= F)) return;
+    chassis_force(m, k, alpha, av, u, &tau, &F, &hmax);
+    double v = y[PS_SDOT + chassis_column(k)];
+    bool slow = hmax * fabs(v) < m->P->omega_rest || v * v_start < 0.0;
+    return slow && fabs(tau) <= F;
+}
+
+static void come_to_rest(Model *m, double *y, int *k) {
     if (*k == 2) {
-        double H2[18];
-        kinematic_model(m, 2, alpha, av, H2);
+        double H2[18], alpha[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]};
+        kinematic_model(m, 2, alpha, y[PS_ALPHA_V], H2);
         double rate = y[PS_SDOT];
         y[PS_SDOT] = H2[3 * 2] * rate;
         y[PS_SDOT + 1] = H2[4 * 2] * rate;
@@ -302,9 +305,19 @@ static void try_rest(Model *m, double *y, int *k, const double u[4], double v_be
     *k = 1;
 }
 
+/* Apply the transition due at y (engaging from rest, coming to rest); returns whether k changed. */
+static bool transition(Model *m, double *y, int *k, const double u[4], double v_start) {
+    int before = *k;
+    if (*k == 1) try_engage(m, y, k, u);
+    else if (rest_due(m, y, *k, u, v_start)) come_to_rest(m, y, k);
+    return *k != before;
+}
+
 /* the stops: alpha within +-steering_limit, the outward rate absorbed (mode 1); alpha_v within
- * +-arctan(l/b) (mode 2, where the inner wheel reaches its stop) */
-static void stops(Model *m, double *y, int k) {
+ * +-arctan(l/b) (mode 2, where the inner wheel reaches its stop). Returns whether a stop was reached that
+ * start (the state at the start of the sub-step) was not at. */
+static bool stops(Model *m, double *y, int k, const double *start) {
+    bool reached = false;
     if (k == 1) {
         double lim = m->P->steering_limit, target[2] = {y[PS_ALPHA], y[PS_ALPHA + 1]};
         bool hit = false;
@@ -313,12 +326,14 @@ static void stops(Model *m, double *y, int k) {
                 target[j] = copysign(lim, target[j]);
                 if (y[PS_SDOT + j] * target[j] > 0.0) y[PS_SDOT + j] = 0.0;
                 hit = true;
+                reached = reached || fabs(start[PS_ALPHA + j]) < lim;
             }
         }
         if (hit) set_alpha(m, y, target);
     } else if (k == 2) {
         double av_max = atan2(m->g[0], m->g[1]);
         if (fabs(y[PS_ALPHA_V]) > av_max) {
+            reached = fabs(start[PS_ALPHA_V]) < av_max;
             y[PS_ALPHA_V] = copysign(av_max, y[PS_ALPHA_V]);
             if (y[PS_SDOT] * y[PS_ALPHA_V] > 0.0) y[PS_SDOT] = 0.0;
         }
@@ -326,6 +341,49 @@ static void stops(Model *m, double *y, int k) {
         qomni_plant_f_icr(y[PS_ALPHA_V], m->g, a);
         y[PS_ALPHA] = a[0];
         y[PS_ALPHA + 1] = a[1];
+    }
+    return reached;
+}
+
+/* y_out = y advanced by theta in mode k with the stops applied; returns whether an event lies within
+ * theta: a stop reached, or a transition due at y_out (which is not applied). */
+static bool advance(Model *m, int k, const double *y, const double u[4], double theta, double *y_out) {
+    memcpy(y_out, y, N_Y * sizeof y[0]);
+    rk4(m, k, y_out, u, theta);
+    bool event = stops(m, y_out, k, y);
+    double trial[N_Y];
+    int kk = k;
+    memcpy(trial, y_out, sizeof trial);
+    return transition(m, trial, &kk, u, y[PS_SDOT + chassis_column(k)]) || event;
+}
+
+#define MAX_EVENTS 8 /* events resolved within one sub-step; later ones are taken at its end */
+#define EVENT_RESOLUTION 0x1p-50 /* bisection down to 2^-50 of the remaining sub-step (about 2e-19 s) */
+
+/* One sub-step dt in mode *k: a transition due at the start is taken there; an event within the sub-step
+ * (a stop reached, a transition due) is located by bisection to within 2^-50 of the sub-step and taken
+ * there; the rest of the sub-step is integrated from there, so the switching times do not depend on the
+ * sub-step grid (and thus not on the communication step). */
+static void substep(Model *m, double *y, int *k, const double u[4], double dt) {
+    transition(m, y, k, u, y[PS_SDOT + chassis_column(*k)]);
+    double rest = dt, next[N_Y];
+    for (int e = 0; rest > 0.0; e++) {
+        double v_start = y[PS_SDOT + chassis_column(*k)];
+        if (!advance(m, *k, y, u, rest, next) || e >= MAX_EVENTS) {
+            memcpy(y, next, sizeof next);
+            transition(m, y, k, u, v_start);
+            return;
+        }
+        double lo = 0.0, hi = rest;
+        while (hi - lo > EVENT_RESOLUTION * rest) {
+            double mid = lo + 0.5 * (hi - lo);
+            if (advance(m, *k, y, u, mid, next)) hi = mid;
+            else lo = mid;
+        }
+        advance(m, *k, y, u, hi, next);
+        memcpy(y, next, sizeof next);
+        transition(m, y, k, u, v_start);
+        rest -= hi;
     }
 }
 
@@ -354,13 +412,7 @@ int qomni_plant_step(double state[QOMNI_PLANT_N_STATE], const double u[4], const
     if (n < 1.0) n = 1.0;
     double dt = h / n, y[N_Y];
     memcpy(y, state, sizeof y);
-    for (double i = 0.0; i < n; i += 1.0) {
-        double v_before = y[PS_SDOT + chassis_column(k)];
-        rk4(&m, k, y, u, dt);
-        stops(&m, y, k);
-        if (k == 1) try_engage(&m, y, &k, u);
-        else try_rest(&m, y, &k, u, v_before);
-    }
+    for (double i = 0.0; i < n; i += 1.0) substep(&m, y, &k, u, dt);
     for (int j = 0; j < N_Y; j++) {
         if (!isfinite(y[j])) {
             *error = "the state became non-finite (check parameters and torques)";
