@@ -245,8 +245,10 @@ class Campaign:
             if self.on_progress:
                 self.on_progress(done[0], self.total_cycles, "probe")
 
+        start = measurement.time
         found, measurement = self.probe.run(self.vehicle, measurement, record)
         writer.flush()
+        meta["segments"].append({"name": "probe", "k": 1, "t_start": start, "t_end": measurement.time})
         for ctrl in self.controllers:
             ctrl.retune(found.steering_bandwidth)
         meta["probe"] = asdict(found)
