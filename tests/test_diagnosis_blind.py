@@ -21,7 +21,7 @@ def suite(tmp_path_factory):
         Case("ideal", {}, [], seed=31),
         Case("torque", {"torque_constant_error": {"drive": "fl", "factor": 0.88}},
              ["torque_constant_error"], seed=32),
-        Case("incline+radius", {"incline": {"angle": 0.02, "uphill_heading": 0.6},
+        Case("incline+radius", {"incline": {"angle": 0.02, "uphill_heading": 2.8450},
                                 "wheel_radius": {"radius": 0.096}},
              ["incline", "wheel_radius"], seed=33),
         Case("slip", {"tire_slip": {"cornering_stiffness": 6000.0}}, ["tire_slip"], seed=34),
