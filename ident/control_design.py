@@ -75,6 +75,30 @@ def design_pid(bandwidth: float, damping: float, cycle_time: float,
     return PDGains(kp=float(k[1]), kd=float(k[2]), ki=float(k[0]))
 
 
+class LowPassFilter:
+    """Online first-order low-pass 1/(τs + 1), Tustin-discretised at T_s, for m channels (unit DC gain).
+
+    Args:
+        cutoff: 1/τ in rad/s. cycle_time: T_s in s. channels: number of independent signals m.
+    """
+
+    def __init__(self, cutoff: float, cycle_time: float, channels: int):
+        sys = control.c2d(control.tf([1], [1 / cutoff, 1]), cycle_time, "tustin")
+        num, den = (np.asarray(v, dtype=float).ravel() for v in control.tfdata(sys))
+        self._b, self._a = num / den[0], den / den[0]
+        self._x = None
+        self._y = None
+
+    def update(self, x) -> np.ndarray:
+        """Feed the next sample x (m,); returns the filtered value (m,), starting at the first sample."""
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        if self._x is None:
+            self._x, self._y = x.copy(), x.copy()
+        y = self._b[0] * x + self._b[1] * self._x - self._a[1] * self._y
+        self._x, self._y = x.copy(), y
+        return y.copy()
+
+
 class DifferentiatorFilter:
     """Online filtered derivative s/(τs + 1), Tustin-discretised at T_s, for m channels.
 
