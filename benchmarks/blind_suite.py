@@ -1,22 +1,28 @@
-"""Blind check of the sim-to-real gap diagnosis (issue: every effect × seeds × 2 magnitudes, the ideal
-emulator, two effects at once), in one command:
+"""Blind check of the sim-to-real gap diagnosis, in one command:
 
-    python benchmarks/blind_suite.py                   # full: 5 seeds × 2 magnitudes, full campaigns
-    python benchmarks/blind_suite.py --quick           # 1 seed, high magnitude, quick campaigns
-    python benchmarks/blind_suite.py --campaigns quick # full size on quick campaigns (~1 h on 2 cores)
+    python benchmarks/blind_suite.py                   # full: 5 draws per effect, pairs, triples, other
+                                                       # vehicles, clean cases; full campaigns; twin reference
+    python benchmarks/blind_suite.py --reference ideal # the same cases against an ideal emulator's model
+    python benchmarks/blind_suite.py --quick           # 1 draw per effect, quick campaigns
+    python benchmarks/blind_suite.py --master-seed 7   # the suite of master seed 7 (default: a new one)
     python benchmarks/blind_suite.py --scheduler tcp://HOST:PORT   # the cases as tasks of a Dask cluster
     python benchmarks/blind_suite.py --probe --dask-vs-local 4     # a local Dask cluster on 127.0.0.1
                                                        # against local processes, same tasks, same run
+    python benchmarks/blind_suite.py --range-ends      # a quick campaign at both ends of every effect's
+                                                       # realistic range: completed, peak torque / limit
 
-Prints top-1 accuracy, false positives and held-out shrinkage per effect and writes
-``<work>/blind_suite.json`` after every finished case; started again, the suite runs only the cases not
-in it. A case's campaign already in ``--work`` is re-used (its run directory holds
-``identification.json``). ``--probe`` runs a worker check instead of campaigns (each task builds its
-case's emulator and steps it). Ray is not offered: its head binds every interface, loopback or not.
+The cases are drawn from a master seed (qomni.suite.cases), new for every new work directory and
+recorded in ``<work>/blind_suite.json`` with each case's draw. Prints top-1 accuracy, false positives and
+held-out shrinkage per effect and rewrites the results file after every finished case; started again on
+the same work directory, the suite takes its master seed from the file and runs only the cases not in
+it. A case's campaign already in ``--work`` is re-used (its run directory holds ``identification.json``).
+``--probe`` runs a worker check instead of campaigns (each task builds its case's emulator and steps it).
+Ray is not offered: its head binds every interface, loopback or not.
 """
 from __future__ import annotations
 
 import argparse
+import secrets
 import sys
 import time
 from pathlib import Path
@@ -26,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
-from qomni.blind_suite import cases, probe_case, run_suite, write_results  # noqa: E402
+from qomni.blind_suite import draw_cases, probe_case, read_run, run_suite, write_results  # noqa: E402
 
 
 def dask_vs_local(todo, work: Path, quick: bool, workers, runner, console) -> int:
@@ -48,12 +54,49 @@ def dask_vs_local(todo, work: Path, quick: bool, workers, runner, console) -> in
     return 1 if errors else 0
 
 
+def range_ends(work: Path, entries, console) -> int:
+    """A quick campaign at each end of every effect's realistic range (qomni.suite.range_ends), in
+    turn; prints the table and returns 1 if any did not complete inside its limits."""
+    from qomni.suite.range_ends import campaign_margins, range_end_cases
+
+    table = Table(title="Campaign at the ends of each effect's realistic range (quick campaigns)")
+    for col in ("Effect", "Table", "Completed", "Peak torque / limit", "At clip", "Straight |x| / x_max",
+                "Probe dead time", "Steering bw"):
+        table.add_column(col, justify="left" if col in ("Effect", "Table") else "right")
+    failed, started = 0, time.perf_counter()
+    for i, (entry, effects) in enumerate(range_end_cases(entries)):
+        out = work / f"{i:02d}_{entry}"
+        if out.exists():
+            import shutil
+
+            shutil.rmtree(out)
+        row = campaign_margins(effects, out, seed=1 + i)
+        failed += not row.completed
+        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                           for t in effects.values() for k, v in t.items())
+        dead = row.probe.get("dead_time")
+        table.add_row(entry, params, "yes" if row.completed else f"NO ({row.status})",
+                      f"{row.peak_torque_ratio:.2f}", f"{100 * row.clipped:.1f} %",
+                      f"{row.excursion / row.room:.2f}", "–" if dead is None else f"{1000 * dead:.0f} ms",
+                      f"{row.probe.get('steering_bandwidth', float('nan')):.1f}")
+        console.print(f"{entry} {params}: {'completed' if row.completed else 'NOT completed'}, peak "
+                      f"{row.peak_torque_ratio:.2f} of the limit ({time.perf_counter() - started:.0f} s)")
+    console.print(table)
+    return 1 if failed else 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="1 seed, high magnitude, quick campaigns")
+    ap.add_argument("--quick", action="store_true", help="1 draw per effect, quick campaigns")
     ap.add_argument("--campaigns", choices=("quick", "full"), default=None,
                     help="campaign length (default: quick with --quick, else full)")
-    ap.add_argument("--seeds", type=int, default=None, help="seeds per effect and magnitude (default 5)")
+    ap.add_argument("--singles", type=int, default=None, help="draws per effect (default 5, 1 with --quick)")
+    ap.add_argument("--master-seed", type=int, default=None,
+                    help="the suite's master seed (default: the results file's, else a new random one)")
+    ap.add_argument("--reference", choices=("twin", "ideal"), default="twin",
+                    help="diagnose against each case's own twin (default) or an ideal emulator's model")
+    ap.add_argument("--range-ends", action="store_true",
+                    help="only the campaign at both ends of every effect's realistic range (quick campaigns)")
     ap.add_argument("--work", type=Path, default=Path("runs/blind_suite"), help="work directory")
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (default: cores)")
     ap.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
@@ -67,13 +110,24 @@ def main(argv=None) -> int:
                     help="diagnose only the cases already recorded in --work (no new campaigns)")
     args = ap.parse_args(argv)
     console = Console()
-    seeds = args.seeds or (1 if args.quick else 5)
-    todo = cases(seeds=seeds, magnitudes=(1,) if args.quick else (0, 1), entries=args.effects,
-                 ideal=max(seeds, 2))
+    if args.range_ends:
+        return range_ends(args.work / "range_ends", args.effects, console)
+    results_path = args.work / "blind_suite.json"
+    recorded = read_run(results_path) if results_path.exists() else {}
+    master = args.master_seed if args.master_seed is not None else recorded.get("master_seed", secrets.randbits(31))
+    if recorded and recorded.get("master_seed") != master:
+        console.print(f"{results_path} holds the suite of master seed {recorded.get('master_seed')}; "
+                      f"use another --work for master seed {master}")
+        return 2
+    singles = args.singles or (1 if args.quick else 5)
+    todo = draw_cases(master, singles=singles, entries=args.effects)
     campaigns = args.campaigns or ("quick" if args.quick else "full")
+    run = {"master_seed": master, "reference": args.reference, "campaigns": campaigns, "singles": singles,
+           "effects": args.effects}
     if args.recorded_only:
         todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
-    console.print(f"{len(todo)} cases in {args.work} ({campaigns} campaigns)")
+    console.print(f"{len(todo)} cases of master seed {master} in {args.work} ({campaigns} campaigns, "
+                  f"{args.reference} reference)")
     started = time.perf_counter()
 
     def show(r):
@@ -92,14 +146,14 @@ def main(argv=None) -> int:
         executor = client.get_executor()
     try:
         results = run_suite(todo, args.work, quick=campaigns == "quick", workers=args.workers, executor=executor,
-                            results_path=None if args.probe else args.work / "blind_suite.json", on_result=show,
-                            runner=runner)
+                            results_path=None if args.probe else results_path, on_result=show,
+                            runner=runner, reference=args.reference, run=run)
     finally:
         if client is not None:
             client.close()
     if args.probe:
         return 0 if not any(r.error for r in results) else 1
-    summary = write_results(results, args.work / "blind_suite.json")
+    summary = write_results(results, results_path, run)
     table = Table(title="Blind check per effect")
     for col in ("Effect", "Cases", "Top-1", "False positives", "Median held-out shrink", "Min shrink",
                 "Median shrink beyond floor", "Min beyond floor", "Median from base fit", "Min from base fit"):
@@ -112,9 +166,12 @@ def main(argv=None) -> int:
                       fmt(e["median_beyond_base_fit_shrink"]), fmt(e["min_beyond_base_fit_shrink"]))
     console.print(table)
     acc = summary["top1_accuracy"]
-    console.print(f"top-1 accuracy {100 * acc:.1f} % over {summary['effect_cases']} effect cases; "
-                  f"ideal: {summary['ideal_false_positives']} false positives in {summary['ideal_cases']} "
-                  f"cases; two effects both named in {summary['pairs_both_named']}/{summary['pair_cases']}; "
+    combos = summary["combinations_all_named"]
+    console.print(f"master seed {master}, {args.reference} reference: top-1 accuracy "
+                  f"{100 * (acc or 0):.1f} % over {summary['effect_cases']} single-effect cases; clean cases with "
+                  f"a false positive {summary['clean_cases_with_false_positive']}/{summary['ideal_cases']}; all "
+                  f"effects named in {combos['2'][0]}/{combos['2'][1]} pairs and {combos['3'][0]}/{combos['3'][1]} "
+                  f"triples; cases with a false positive {summary['cases_with_false_positive']}; "
                   f"{time.perf_counter() - started:.0f} s wall")
     for err in summary["errors"]:
         console.print(f"[red]error[/] {err}")

@@ -21,6 +21,7 @@ from qomni.vehicle_interface import VehicleInterface
 
 from . import excitation, kinematics
 from .controller import ControllerSettings, StepController, quintic_alignment
+from .probe import DeadTimeProbe
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .recording import SignalWriter
@@ -154,6 +155,7 @@ class Campaign:
         # built now: the first one compiles the model (≈ 0.3 s), far longer than a SYNC timeout
         self.controllers = [StepController(seg, sheet, self.controller_settings)
                             for seg in self.segments]
+        self.probe = DeadTimeProbe(sheet, self.controller_settings) if self.controller_settings.probe else None
         self.run_dir.mkdir(parents=True, exist_ok=True)
         if (self.run_dir / SIGNALS).exists():
             raise FileExistsError(f"{self.run_dir / SIGNALS} exists; choose a new run directory")
@@ -175,7 +177,7 @@ class Campaign:
     @property
     def total_cycles(self) -> int:
         ts = self.sheet.drive.cycle_time
-        return sum(_cycles(seg, ts) for seg in self.segments)
+        return sum(_cycles(seg, ts) for seg in self.segments) + (self.probe.total_cycles if self.probe else 0)
 
     def run(self, vehicle: VehicleInterface) -> dict:
         """Execute all segments on ``vehicle`` (connected, drives enabled); returns the metadata
@@ -195,6 +197,9 @@ class Campaign:
         writer = SignalWriter(self.run_dir / SIGNALS)
         try:
             measurement = self.vehicle.exchange(np.zeros(4))
+            if self.probe is not None:
+                measurement = self._probe(measurement, writer, meta)
+                done = self.probe.total_cycles
             for seg, ctrl in zip(self.segments, self.controllers):
                 start = measurement.time
                 for j in range(_cycles(seg, ts)):
@@ -228,6 +233,28 @@ class Campaign:
         meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S")
         self._write_metadata(meta)
         return meta
+
+    def _probe(self, measurement, writer: SignalWriter, meta: dict):
+        """The dead-time probe (qomni.ident.probe), recorded as step ``probe``; its steering bandwidth
+        goes to every step's controller and its result to the metadata."""
+        done = [0]
+
+        def record(m, u):
+            writer.write("probe", 1, m, u)
+            done[0] += 1
+            if self.on_progress:
+                self.on_progress(done[0], self.total_cycles, "probe")
+
+        start = measurement.time
+        found, measurement = self.probe.run(self.vehicle, measurement, record)
+        writer.flush()
+        meta["segments"].append({"name": "probe", "k": 1, "t_start": start, "t_end": measurement.time})
+        for ctrl in self.controllers:
+            ctrl.retune(found.steering_bandwidth)
+        meta["probe"] = asdict(found)
+        meta["controller"]["steering_bandwidth"] = found.steering_bandwidth
+        self._write_metadata(meta)
+        return measurement
 
     def _safe_stop(self) -> None:
         try:

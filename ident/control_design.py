@@ -75,6 +75,30 @@ def design_pid(bandwidth: float, damping: float, cycle_time: float,
     return PDGains(kp=float(k[1]), kd=float(k[2]), ki=float(k[0]))
 
 
+class LowPassFilter:
+    """Online first-order low-pass 1/(τs + 1), Tustin-discretised at T_s, for m channels (unit DC gain).
+
+    Args:
+        cutoff: 1/τ in rad/s. cycle_time: T_s in s. channels: number of independent signals m.
+    """
+
+    def __init__(self, cutoff: float, cycle_time: float, channels: int):
+        sys = control.c2d(control.tf([1], [1 / cutoff, 1]), cycle_time, "tustin")
+        num, den = (np.asarray(v, dtype=float).ravel() for v in control.tfdata(sys))
+        self._b, self._a = num / den[0], den / den[0]
+        self._x = None
+        self._y = None
+
+    def update(self, x) -> np.ndarray:
+        """Feed the next sample x (m,); returns the filtered value (m,), starting at the first sample."""
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        if self._x is None:
+            self._x, self._y = x.copy(), x.copy()
+        y = self._b[0] * x + self._b[1] * self._x - self._a[1] * self._y
+        self._x, self._y = x.copy(), y
+        return y.copy()
+
+
 class DifferentiatorFilter:
     """Online filtered derivative s/(τs + 1), Tustin-discretised at T_s, for m channels.
 
@@ -101,3 +125,67 @@ class DifferentiatorFilter:
         self._x = x.copy()
         self._y = y
         return y.copy()
+
+
+def steering_loop(gains: PDGains, cycle_time: float, derivative_cutoff: float, dead_time: float):
+    """The open steering loop L(z) = C(z)·P(z)·z^(−n) of a unit double integrator under PID ``gains``.
+
+    C(z) = kp + kd·D(z) + ki·T_s/(z − 1), D the Tustin filtered differentiator the controller estimates
+    α̇ with; P the ZOH double integrator; n = ⌈dead_time / T_s⌉ cycles of dead time (an actuator delay,
+    rounded up to whole cycles: the conservative side). A discrete python-control ``TransferFunction``.
+    """
+    ts = cycle_time
+    plant = control.c2d(control.tf([1], [1, 0, 0]), ts, "zoh")
+    diff = control.c2d(control.tf([1, 0], [1 / derivative_cutoff, 1]), ts, "tustin")
+    integ = control.tf([ts, 0], [1, -1], ts)
+    n = math.ceil(dead_time / ts - 1e-9)
+    delay = control.tf([1], [1] + [0] * n, ts)
+    return (gains.kp + gains.kd * diff + gains.ki * integ) * plant * delay
+
+
+def phase_margin(loop, cycle_time: float) -> float:
+    """Phase margin of a discrete open loop at its first 0 dB crossing, degrees.
+
+    The frequency response is evaluated on a log grid up to Nyquist (python-control's
+    ``frequency_response``) and the crossing interpolated; −inf when |L| never falls through 1 (no
+    crossover: not a stabilising loop for a double integrator); the margin is wrapped into [−180°, 180°).
+    """
+    omega = np.logspace(-1, math.log10(math.pi / cycle_time) - 1e-6, 4000)
+    response = np.asarray(control.frequency_response(loop, omega).frdata).ravel()
+    gain = np.abs(response)
+    below = np.nonzero((gain[:-1] >= 1) & (gain[1:] < 1))[0]
+    if not len(below):
+        return -math.inf
+    i = below[0]
+    w = (math.log(gain[i]) / (math.log(gain[i]) - math.log(gain[i + 1])))
+    phase = np.unwrap(np.angle(response[i:i + 2]))
+    return float((math.degrees((1 - w) * phase[0] + w * phase[1]) + 360.0) % 360.0 - 180.0)
+
+
+def delay_robust_bandwidth(bandwidth: float, damping: float, cycle_time: float, integral_ratio: float,
+                           derivative_cutoff: float, dead_time: float, min_phase_margin: float,
+                           floor: float = 4.0) -> float:
+    """The largest steering bandwidth ≤ ``bandwidth`` whose PID design (:func:`design_pid`) keeps the
+    phase margin ≥ ``min_phase_margin`` (degrees) with ``dead_time`` s in the loop (:func:`steering_loop`).
+
+    A dead time lowers the phase at crossover by ω_c·τ; a loop tuned for a stiff actuator then runs into a
+    limit cycle at the torque limit. Bisection on the bandwidth (the margin falls as it rises), 0.1 rad/s.
+
+    Returns:
+        ``bandwidth`` itself when it meets the margin, else the bisected value (rad/s, ≥ ``floor``:
+        below it the loop could no longer hold the steering against its friction, and ``floor`` is
+        returned whatever its margin).
+    """
+    def margin(bw: float) -> float:
+        gains = design_pid(bw, damping, cycle_time, integral_ratio)
+        return phase_margin(steering_loop(gains, cycle_time, derivative_cutoff, dead_time), cycle_time)
+
+    if margin(bandwidth) >= min_phase_margin:
+        return bandwidth
+    low, high = floor, bandwidth
+    if margin(low) < min_phase_margin:
+        return floor
+    while high - low > 0.1:
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if margin(mid) >= min_phase_margin else (low, mid)
+    return low

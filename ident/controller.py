@@ -12,12 +12,12 @@ Per cycle it
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import dynamics, kinematics, odometry
-from .control_design import DifferentiatorFilter, design_pd, design_pid
+from .control_design import DifferentiatorFilter, LowPassFilter, design_pd, design_pid
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 
@@ -33,7 +33,17 @@ class ControllerSettings:
     chassis_bandwidth: float = 6.0
     damping: float = 0.9
     derivative_cutoff: float = 150.0
+    # Low-pass on the chassis rate (from the drives' velocities) the chassis loop damps with: a gear
+    # backlash lets the motor rotors rattle in the gap at ≈ 100 Hz, and the loop's gain on the whole
+    # vehicle's inertia turns that rattle into a torque limit cycle; 10 × the chassis bandwidth costs
+    # 6° of its 69° phase margin.
+    chassis_rate_cutoff: float = 60.0
     torque_margin: float = 0.95  # fraction of max_torque the controller may command
+    # The steering loop keeps this phase margin (deg) with the dead time the probe measures
+    # (DeadTimeProbe); the default bandwidth has 36° without dead time, so an undelayed vehicle keeps it.
+    min_phase_margin: float = 30.0
+    probe: bool = True  # measure the actuator dead time first and lower the steering bandwidth to it
+    max_dead_time: float = 0.03  # s, the dead time the gains are designed for when the probe sees none
 
 
 @dataclass
@@ -67,23 +77,28 @@ class StepController:
         g, d, n = sheet.geometry, sheet.drive, sheet.nominal
         self.k = step.mode
         self.p_nominal = n.p
-        self._steer_gains = design_pid(s.steering_bandwidth, s.damping, d.cycle_time,
-                                       s.steering_integral_ratio)
         self._chassis_gains = design_pd(s.chassis_bandwidth, s.damping, d.cycle_time)
         self._dalpha = DifferentiatorFilter(s.derivative_cutoff, d.cycle_time, 2)
+        self._rate = LowPassFilter(s.chassis_rate_cutoff, d.cycle_time, 1)
         ar2 = (g.a / g.r) ** 2
         self._steer_inertia = np.array([n.C_l, n.C_r]) + 2 * n.B_w * ar2
         self._hold_rows = d.i_G * kinematics.H(1, np.zeros((1, 2)), g)[0][5:9, :].T  # (2, 4) H_1ᵀB
         self._s_chassis = 0.0
         self._steer_integral = np.zeros(2)
-        # anti-windup: the integral may supply at most 1.5 × the nominal steering Coulomb friction
-        self._integral_limit = 1.5 * np.array([n.d_cl, n.d_cr]) / (
-            self._steer_inertia * self._steer_gains.ki)
+        self.retune(s.steering_bandwidth)
         # errors within the steering sensor's quantization are not integrated (no wind-up on an LSB)
         self._integral_deadband = 1.5 * d.steering_lsb
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
         self._warm_up()
+
+    def retune(self, steering_bandwidth: float) -> None:
+        """Set the steering loop's bandwidth (rad/s): its PID gains (:func:`design_pid`) and the
+        integral's anti-windup limit (at most 1.5 × the nominal steering Coulomb friction)."""
+        s, d, n = self.settings, self.sheet.drive, self.sheet.nominal
+        self.settings = replace(s, steering_bandwidth=steering_bandwidth)
+        self._steer_gains = design_pid(steering_bandwidth, s.damping, d.cycle_time, s.steering_integral_ratio)
+        self._integral_limit = 1.5 * np.array([n.d_cl, n.d_cr]) / (self._steer_inertia * self._steer_gains.ki)
 
     def _warm_up(self) -> None:
         """Evaluate the command path once: the model compiles on first use (≈ 0.1–0.3 s), which must
@@ -148,7 +163,7 @@ class StepController:
         rows, forces = [self._hold_rows], [q_steer]
         if chassis is not None:
             h = self._chassis_column(st.alpha)
-            rate = self._chassis_rate(st.velocity)
+            rate = float(self._rate.update(self._chassis_rate(st.velocity))[0])
             q_ch = self._chassis_inertia(h) * (cg.kp * (chassis[0] - st.s_chassis)
                                                + cg.kd * (chassis[1] - rate))
             rows.append((d.i_G * h[5:9])[None])  # H_kᵀB of the chassis column, (1, 4)

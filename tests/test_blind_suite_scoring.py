@@ -5,7 +5,7 @@ import pytest
 from qomni.diagnosis.channels import TRACTION_LIMIT, _segments, traction_limited
 from qomni.diagnosis.evaluation import ChannelShrink
 from qomni.datasheet import DataSheet
-from qomni.blind_suite import Case, CaseResult, cases, excess_shrink, noise_floor, score
+from qomni.blind_suite import Case, CaseResult, excess_shrink, noise_floor, score
 
 
 def _result(entry, truth, variants, accepted, accepted_variants):
@@ -60,21 +60,6 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
     assert e["median_beyond_base_fit_shrink"] == e["min_beyond_base_fit_shrink"] == 0.12
     assert e["median_excess_shrink"] == pytest.approx(1 - np.sqrt((16 - 12.5) / (25 - 12.5)))
     assert score([heavy])["per_effect"]["heavy_steering_units"]["median_excess_shrink"] is None
-
-
-def test_suite_cases_say_which_drive_and_joints():
-    by_name = {c.name: c for c in cases(seeds=2, magnitudes=(0, 1))}
-    tc = [c for c in by_name.values() if c.entry == "torque_constant_error"]
-    assert {c.variants["torque_constant_error"] for c in tc} <= {"drive fl", "drive rl", "drive fr", "drive rr"}
-    assert all(c.variants["torque_constant_error"] == f"drive {c.effects['torque_constant_error']['drive']}"
-               for c in tc)
-    assert all(c.variants == {"stribeck": "joints=steering"} for c in by_name.values()
-               if c.entry == "stribeck_steering")
-    assert all(c.variants == {} for c in by_name.values() if c.entry == "payload")
-    pairs = [c for c in by_name.values() if len(c.truth) == 2]
-    assert [c.name for c in pairs] == ["incline_high+wheel_radius_high_s600",
-                                       "actuator_delay_low+backlash_high_s601"]
-    assert pairs[1].effects["actuator_delay"]["delay"] < 0.01
 
 
 def test_traction_limited_rows_are_widened_by_the_margin():

@@ -12,11 +12,8 @@ from .base import Effect, EffectsError, Param, Plant
 class ActuatorDelay(Effect):
     name = "actuator_delay"
     stage = 100
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "actuator_delay": ({"delay": 0.004},
-                           {"delay": 0.01}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"actuator_delay": ({"delay": 0.002}, {"delay": 0.02})}
     summary = "applied torque lags the reported torque by a dead time"
     params = {
         "delay": Param("s", 0.0, 0.1, doc="dead time, a multiple of the physics step (1 ms)"),
@@ -37,3 +34,8 @@ class ActuatorDelay(Effect):
         self._fifo[self._head] = applied
         self._head = (self._head + 1) % len(self._fifo)
         return out
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """The drawn delay on the physics step's grid (1 ms), as the effect requires."""
+        return {**table, "delay": round(table["delay"], 3)}

@@ -22,11 +22,8 @@ SOLVER_ITERATIONS = 300
 class Backlash(Effect):
     name = "backlash"
     stage = 40
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "backlash": ({"gap": 0.005},
-                     {"gap": 0.01}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"backlash": ({"gap": 0.002}, {"gap": 0.02})}
     summary = "gear backlash: motor rotor and wheel coupled through a gap"
     params = {
         "gap": Param("rad", 0.0, 0.1, doc="total backlash, wheel side of the gear"),

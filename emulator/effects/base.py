@@ -126,8 +126,9 @@ class Effect:
     params: ClassVar[dict[str, Param]] = {}
     summary: ClassVar[str] = ""
     stage: ClassVar[int] = 100
-    #: Blind-suite entries of the effect: entry name → (low, high) realistic magnitudes, each an effects-file
-    #: table (usually one entry named as the effect; several where the effect has variants).
+    #: Blind-suite entries of the effect: entry name → the (weak, strong) ends of its realistic range
+    #: (docs/effects.md), each an effects-file table (usually one entry named as the effect; several
+    #: where the effect has variants). ``draw`` samples between them.
     suite: ClassVar[dict[str, tuple[dict, dict]]] = {}
 
     def __init__(self, **values):
@@ -138,6 +139,32 @@ class Effect:
 
     def fresh(self) -> "Effect":
         return type(self)(**self.values)
+
+    # -- the realistic range ----------------------------------------------------------------
+    @classmethod
+    def draw(cls, entry: str, rng: np.random.Generator) -> dict:
+        """An effects-file table for suite ``entry`` drawn over its realistic range: each number
+        independently log-uniform between the two ends' values (lists element by element; equal ends
+        stay), then :meth:`instance` picks the direction or instance.
+
+        Raises:
+            KeyError: ``entry`` is not one of the effect's suite entries.
+        """
+        weak, strong = cls.suite[entry]
+        table = {key: _between(value, strong.get(key, value), rng) for key, value in weak.items()}
+        return cls.instance(entry, table, rng)
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng: np.random.Generator) -> dict:
+        """The drawn table with its direction or instance chosen (a payload's quadrant, the faulty
+        drive); the default has none."""
+        return table
+
+    @classmethod
+    def range_ends(cls, entry: str) -> list[dict]:
+        """Effects-file tables at the ends of ``entry``'s realistic range, every direction that bounds it
+        (the campaign must complete at each)."""
+        return [dict(t) for t in cls.suite[entry]]
 
     # -- hooks -------------------------------------------------------------------------------
     def configure(self, plan: BuildPlan, description) -> None:
@@ -170,3 +197,15 @@ class Effect:
     @classmethod
     def shapes_report(cls) -> bool:
         return cls.reported_torque is not Effect.reported_torque
+
+
+def _between(a, b, rng: np.random.Generator):
+    """A value drawn between a and b: log-uniform for two positive numbers, uniform otherwise; lists
+    element by element; anything else (a choice) as a."""
+    if isinstance(a, (list, tuple)):
+        return [_between(x, y, rng) for x, y in zip(a, b)]
+    if isinstance(a, bool) or not isinstance(a, (int, float)) or a == b:
+        return a
+    if a > 0 and b > 0:
+        return float(math.exp(rng.uniform(math.log(min(a, b)), math.log(max(a, b)))))
+    return float(rng.uniform(min(a, b), max(a, b)))

@@ -13,11 +13,9 @@ from .base import BuildPlan, Effect, Param
 class HeavySteeringUnits(Effect):
     name = "heavy_steering_units"
     stage = 10
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "heavy_steering_units": ({"steering_unit_mass": 20.0, "wheel_mass": 8.0},
-                                 {"steering_unit_mass": 30.0, "wheel_mass": 12.0}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"heavy_steering_units": ({"steering_unit_mass": 5.0, "wheel_mass": 2.0},
+                                      {"steering_unit_mass": 40.0, "wheel_mass": 15.0})}
     summary = "real steering-unit and wheel masses: configuration-dependent yaw inertia, α–γ coupling"
     params = {
         "steering_unit_mass": Param("kg", 0.05, 100.0, doc="per steering fork, centre on the steering axis"),

@@ -14,11 +14,8 @@ from qomni.conventions import GRAVITY
 class Incline(Effect):
     name = "incline"
     stage = 50
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "incline": ({"angle": 0.01},
-                    {"angle": 0.02}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"incline": ({"angle": 0.005}, {"angle": 0.05})}
     summary = "floor inclination (tilted gravity)"
     params = {
         "angle": Param("rad", 0.0, 0.3, doc="inclination of the floor"),
@@ -34,3 +31,22 @@ class Incline(Effect):
 
     def attach(self, plant: Plant) -> None:
         plant.pb.setGravity(*self.gravity())
+
+    #: A slope within this angle of purely lateral to every straight motion of the campaign (its straight
+    #: step and lane change drive along the world x axis) does almost no work on it and is invisible.
+    LATERAL_EXCLUSION = math.radians(25.0)
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """The uphill direction drawn over every heading that does work on the campaign: uniform on the
+        circle but for ±``LATERAL_EXCLUSION`` around ±π/2."""
+        half = math.pi / 2 - cls.LATERAL_EXCLUSION
+        heading = rng.uniform(-half, half) + (math.pi if rng.random() < 0.5 else 0.0)
+        return {**table, "uphill_heading": float(heading)}
+
+    @classmethod
+    def range_ends(cls, entry: str) -> list[dict]:
+        """Both ends, the steep one uphill along +x, −x and at the edge of the lateral exclusion."""
+        weak, strong = cls.suite[entry]
+        edge = math.pi / 2 - cls.LATERAL_EXCLUSION
+        return [{**weak, "uphill_heading": 0.0}] + [{**strong, "uphill_heading": h} for h in (0.0, math.pi, edge)]

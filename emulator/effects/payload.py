@@ -13,11 +13,9 @@ FOOTPRINT = (0.6, 0.5)  # m, x and y edges of the payload box
 class Payload(Effect):
     name = "payload"
     stage = 20
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "payload": ({"mass": 150.0, "com_offset": [0.25, 0.15], "height": 0.3},
-                    {"mass": 300.0, "com_offset": [0.25, 0.15], "height": 0.3}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"payload": ({"mass": 50.0, "com_offset": [0.05, 0.05], "height": 0.05},
+                         {"mass": 400.0, "com_offset": [0.4, 0.4], "height": 0.5})}
     summary = "extra rigid mass on the chassis with a centre-of-mass offset"
     params = {
         "mass": Param("kg", 0.0, 2000.0, doc="payload mass"),
@@ -33,3 +31,15 @@ class Payload(Effect):
         top = 0.05 + description.body.chassis_height  # the chassis box's top in the chassis frame
         plan.fixed_links.append(FixedLink("payload", self.values["mass"], (x, y, top + h),
                                           (*FOOTPRINT, 2 * h)))
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """The centre-of-mass offset in any quadrant (each coordinate's sign drawn)."""
+        return {**table, "com_offset": [float(v * rng.choice((-1.0, 1.0))) for v in table["com_offset"]]}
+
+    @classmethod
+    def range_ends(cls, entry: str) -> list[dict]:
+        """Both ends, the strong one in every quadrant."""
+        weak, strong = cls.suite[entry]
+        return [dict(weak)] + [{**strong, "com_offset": [sx * strong["com_offset"][0], sy * strong["com_offset"][1]]}
+                               for sx in (1.0, -1.0) for sy in (1.0, -1.0)]

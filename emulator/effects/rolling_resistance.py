@@ -13,11 +13,8 @@ from .base import Effect, Param, Plant
 class RollingResistance(Effect):
     name = "rolling_resistance"
     stage = 90
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "rolling_resistance": ({"c_rr": 0.008},
-                               {"c_rr": 0.015}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"rolling_resistance": ({"c_rr": 0.005}, {"c_rr": 0.02})}
     summary = "rolling resistance torque c_rr·N·r from each wheel's contact normal force"
     params = {
         "c_rr": Param("-", 0.0, 0.1, doc="rolling resistance coefficient"),

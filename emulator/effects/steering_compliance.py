@@ -13,11 +13,8 @@ from .base import Effect, Param, Plant
 class SteeringCompliance(Effect):
     name = "steering_compliance"
     stage = 60
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "steering_compliance": ({"stiffness": 2000.0},
-                                {"stiffness": 800.0}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"steering_compliance": ({"stiffness": 5000.0}, {"stiffness": 300.0})}
     summary = "front/rear steering linkage as a torsional spring-damper instead of rigid"
     params = {
         "stiffness": Param("N m/rad", 50.0, 1e5, doc="torsional stiffness of a side's linkage"),

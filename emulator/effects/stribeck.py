@@ -13,13 +13,10 @@ from .base import Effect, Param, Plant
 class Stribeck(Effect):
     name = "stribeck"
     stage = 80
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "stribeck_wheels": ({"joints": "wheels", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
-                            {"joints": "wheels", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
-        "stribeck_steering": ({"joints": "steering", "breakaway_ratio": 1.5, "stribeck_velocity": 0.05},
-                              {"joints": "steering", "breakaway_ratio": 2.0, "stribeck_velocity": 0.05}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {f"stribeck_{joints}": ({"joints": joints, "breakaway_ratio": 1.2, "stribeck_velocity": 0.01},
+                                    {"joints": joints, "breakaway_ratio": 2.5, "stribeck_velocity": 0.2})
+             for joints in ("wheels", "steering", "both")}
     summary = "low-speed friction peak (breakaway above Coulomb) in the wheel or steering joints"
     params = {
         "joints": Param("-", kind="choice", choices=("wheels", "steering", "both"),

@@ -23,11 +23,8 @@ V_MIN = 0.05  # m/s, slip-angle denominator floor at standstill (keeps the force
 class TireSlip(Effect):
     name = "tire_slip"
     stage = 70
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "tire_slip": ({"cornering_stiffness": 8000.0},
-                      {"cornering_stiffness": 4000.0}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"tire_slip": ({"cornering_stiffness": 30000.0}, {"cornering_stiffness": 5000.0})}
     summary = "lateral tyre force from the slip angle (cornering stiffness) instead of rigid contact"
     params = {
         "cornering_stiffness": Param("N/rad", 500.0, 2e5, doc="C_α per wheel"),

@@ -12,11 +12,8 @@ from .base import WHEELS, Effect, Param
 class TorqueConstantError(Effect):
     name = "torque_constant_error"
     stage = 110
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "torque_constant_error": ({"factor": 0.92},
-                                  {"factor": 0.88}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"torque_constant_error": ({"drive": "fl", "factor": 0.95}, {"drive": "fl", "factor": 0.85})}
     summary = "one drive applies factor × its reported torque"
     params = {
         "drive": Param("-", kind="choice", choices=WHEELS, doc="the drive: fl, rl, fr or rr"),
@@ -31,3 +28,15 @@ class TorqueConstantError(Effect):
 
     def drive_torque(self, applied: np.ndarray) -> np.ndarray:
         return applied * self._scale
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """Any drive, the factor below or above 1 by the drawn deviation."""
+        factor = table["factor"] if rng.random() < 0.5 else 2.0 - table["factor"]
+        return {**table, "drive": str(rng.choice(WHEELS)), "factor": float(factor)}
+
+    @classmethod
+    def range_ends(cls, entry: str) -> list[dict]:
+        """The deviations' ends below and above 1."""
+        weak, strong = cls.suite[entry]
+        return [dict(t, factor=f) for t in (weak, strong) for f in (t["factor"], 2.0 - t["factor"])]

@@ -11,6 +11,7 @@ from .base import Effect, EffectsError, Param, Plant
 class TorqueReportLag(Effect):
     name = "torque_report_lag"
     stage = 95
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
     suite = {"torque_report_lag": ({"lag": 0.002}, {"lag": 0.006})}
     summary = "the drives' torque actual lags the torque they apply"
     params = {
@@ -33,3 +34,11 @@ class TorqueReportLag(Effect):
         self._fifo[self._head] = reported
         self._head = (self._head + 1) % len(self._fifo)
         return out
+
+    #: The SYNC period the lag is a multiple of, s (the data sheet's T_s).
+    CYCLE = 0.002
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """The drawn lag on the SYNC period's grid, as the effect requires."""
+        return {**table, "lag": round(round(table["lag"] / cls.CYCLE) * cls.CYCLE, 3)}

@@ -10,11 +10,8 @@ from .base import BuildPlan, Effect, Param
 class WheelRadius(Effect):
     name = "wheel_radius"
     stage = 30
-    #: Blind-suite entries: (low, high) realistic magnitudes as effects-file tables (docs/effects.md).
-    suite = {
-        "wheel_radius": ({"radius": 0.098},
-                         {"radius": 0.096}),
-    }
+    #: Blind-suite entries: the (weak, strong) ends of the realistic range (docs/effects.md).
+    suite = {"wheel_radius": ({"radius": 0.098}, {"radius": 0.095})}
     summary = "physical rolling radius differs from the data sheet's r"
     params = {
         "radius": Param("m", 0.05, 0.2, doc="effective rolling radius of all four wheels"),
@@ -22,3 +19,17 @@ class WheelRadius(Effect):
 
     def configure(self, plan: BuildPlan, description) -> None:
         plan.wheel_radius = self.values["radius"]
+
+    #: The data sheet's nominal r, m, that the drawn radius deviates from.
+    NOMINAL = 0.1
+
+    @classmethod
+    def instance(cls, entry: str, table: dict, rng) -> dict:
+        """A worn (smaller) or a larger wheel by the drawn deviation from the nominal 0.1 m."""
+        radius = table["radius"] if rng.random() < 0.5 else 2 * cls.NOMINAL - table["radius"]
+        return {**table, "radius": float(radius)}
+
+    @classmethod
+    def range_ends(cls, entry: str) -> list[dict]:
+        """Smaller and larger wheels at both ends."""
+        return [{"radius": r} for t in cls.suite[entry] for r in (t["radius"], 2 * cls.NOMINAL - t["radius"])]

@@ -1,0 +1,143 @@
+"""The dead-time probe: a short steering pulse at rest that measures how long the wheels' torque takes
+to act, so the campaign's steering loop is tuned to the vehicle's actuators before the campaign moves.
+
+An actuator delay (current loop, PWM, the drive's set-point pipeline) takes phase out of every loop at
+ω·τ: a 20 ms delay turns the default 45 rad/s steering loop into a limit cycle at the torque limit. The
+delay cannot be read from the bus (torque actual, 0x6077, reports the set-point at once); it shows only
+in the motion. So the probe, at rest in mode 1 (chassis still):
+
+1. commands both steering angles open loop with the nominal feed-forward (21) of a bang-bang
+   acceleration ±``acceleration`` for ``pulse`` s each (Coulomb friction compensated as if sliding);
+2. fits Δα(t) = c·½·max(t − τ, 0)² to the mean steering angle over the accelerating half, τ on whole
+   cycles (the loop's resolution), c by least squares: τ is the dead time;
+3. brings the steering back to where it started with gains designed for ``max_dead_time``, and hands
+   the campaign the steering bandwidth that keeps ``min_phase_margin`` with the measured τ
+   (:func:`qomni.ident.control_design.delay_robust_bandwidth`).
+
+A steering that does not respond (friction above the pulse's torque, no vehicle motion) gives no τ; the
+campaign then keeps the gains designed for ``max_dead_time``: slower tracking, never a limit cycle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from . import dynamics
+from .control_design import delay_robust_bandwidth
+from .controller import ControllerSettings, StepController, quintic_alignment
+from qomni.datasheet import DataSheet
+
+#: Response the fit needs at the end of the accelerating half, in steering-sensor LSB: below it the
+#: steering has not moved (stiction, no vehicle) and no dead time is read.
+MIN_RESPONSE_LSB = 20
+#: Samples the fit keeps after the latest dead time it tries (the curvature needs a few).
+MIN_FIT_CYCLES = 10
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """What the probe measured and chose.
+
+    Attributes:
+        dead_time: s, the fitted τ (None: no response to fit).
+        acceleration: rad/s², the fitted c (the acceleration the pulse really gave).
+        response: rad, mean |Δα| at the end of the accelerating half.
+        fit_rms: rad, RMS of the fit's residual.
+        steering_bandwidth: rad/s, the campaign's steering bandwidth from here on.
+    """
+
+    dead_time: float | None
+    acceleration: float
+    response: float
+    fit_rms: float
+    steering_bandwidth: float
+
+
+def fit_dead_time(delta_alpha: np.ndarray, cycle_time: float, max_cycles: int) -> tuple[int, float, float]:
+    """Fit Δα_k = c·½·max(k·T_s − n·T_s, 0)² (k = 1 … N) over n = 0 … ``max_cycles``.
+
+    Args:
+        delta_alpha: (N,) rad, the angle moved since the pulse began, one sample per cycle.
+    Returns:
+        (n, c [rad/s²], residual RMS [rad]) of the best n.
+    """
+    t = cycle_time * np.arange(1, len(delta_alpha) + 1)
+    best = None
+    for n in range(max_cycles + 1):
+        basis = 0.5 * np.maximum(t - n * cycle_time, 0.0) ** 2
+        c = float(basis @ delta_alpha / (basis @ basis))
+        rms = float(np.sqrt(np.mean((delta_alpha - c * basis) ** 2)))
+        if best is None or rms < best[2]:
+            best = (n, c, rms)
+    return best
+
+
+class DeadTimeProbe:
+    """The probe's movements, planned before any vehicle is connected (nothing slow between SYNCs).
+
+    Args:
+        sheet: the data sheet (nominal parameters for the feed-forward, geometry, drive).
+        settings: the campaign controller's settings (bandwidth, phase margin, ``max_dead_time``).
+        acceleration: rad/s² of the pulse; pulse: s of each half; settle: s to return and rest.
+    """
+
+    def __init__(self, sheet: DataSheet, settings: ControllerSettings | None = None, acceleration: float = 40.0,
+                 pulse: float = 0.05, settle: float = 0.8):
+        self.sheet, self.settings = sheet, settings or ControllerSettings()
+        d, s = sheet.drive, self.settings
+        self.cycles = int(round(pulse / d.cycle_time))
+        self.safe_bandwidth = self._bandwidth(s.max_dead_time)
+        q = np.zeros((2, 9))
+        sd = np.ones((2, 2))                                 # sliding forwards: Coulomb compensated
+        sdd = np.array([[acceleration] * 2, [-acceleration] * 2])
+        self._u = dynamics.feedforward(1, q, sd, sdd, sheet.nominal.p, sheet.geometry, d.i_G)  # (2, 4)
+        moved = np.full(2, acceleration * pulse**2)           # where a bang-bang of ±a for T each ends
+        back = quintic_alignment(moved, np.zeros(2), settle, name="probe")
+        self._return = StepController(back, sheet, replace(s, steering_bandwidth=self.safe_bandwidth))
+        self._return_cycles = int(np.floor(settle / d.cycle_time + 1e-9)) + 1
+
+    @property
+    def total_cycles(self) -> int:
+        return 2 * self.cycles + self._return_cycles
+
+    def _bandwidth(self, dead_time: float) -> float:
+        s, d = self.settings, self.sheet.drive
+        return delay_robust_bandwidth(s.steering_bandwidth, s.damping, d.cycle_time, s.steering_integral_ratio,
+                                      s.derivative_cutoff, dead_time, s.min_phase_margin)
+
+    def run(self, vehicle, measurement, on_cycle: Callable | None = None):
+        """Run the probe on ``vehicle`` (a ``VehicleInterface``) from ``measurement`` (the last one).
+
+        Args:
+            on_cycle: called with (measurement, command) after every exchange (the recording).
+        Returns:
+            (:class:`ProbeResult`, the last measurement).
+        """
+        start = np.asarray(measurement.alpha, dtype=float)
+        moved = []
+        for j in range(2 * self.cycles):
+            u = self._u[0] if j < self.cycles else self._u[1]
+            measurement = vehicle.exchange(u)
+            if j < self.cycles:
+                moved.append(np.mean(np.asarray(measurement.alpha) - start))
+            if on_cycle:
+                on_cycle(measurement, u)
+        for j in range(self._return_cycles):
+            u = self._return.command(j * self.sheet.drive.cycle_time, measurement)
+            measurement = vehicle.exchange(u)
+            if on_cycle:
+                on_cycle(measurement, u)
+        return self.evaluate(np.array(moved)), measurement
+
+    def evaluate(self, moved: np.ndarray) -> ProbeResult:
+        """The probe's result from the mean steering angle moved (N,) rad over the accelerating half."""
+        d = self.sheet.drive
+        lsb = d.steering_lsb
+        response = float(abs(moved[-1])) if len(moved) else 0.0
+        n, c, rms = fit_dead_time(moved, d.cycle_time, max(self.cycles - MIN_FIT_CYCLES, 0))
+        if response < MIN_RESPONSE_LSB * lsb or c <= 0:
+            return ProbeResult(None, c, response, rms, self.safe_bandwidth)
+        dead_time = n * d.cycle_time
+        return ProbeResult(dead_time, c, response, rms, self._bandwidth(dead_time))

@@ -1,0 +1,113 @@
+"""The blind suite's cases drawn from a master seed (whole realistic ranges, every direction and instance,
+pairs, triples, other vehicles, clean cases), the results file recording the draw, and its resumption;
+without campaigns (the worker check runs each case's emulator for a tenth of a second)."""
+import collections
+import math
+
+import numpy as np
+import pytest
+
+from qomni.blind_suite import (MAGNITUDES, PROTOTYPE_OWN, VEHICLES, Case, CaseResult, draw, draw_cases, effect_name,
+                               probe_case, read_results, read_run, run_suite, score)
+from qomni.emulator.effects import EffectSet
+from qomni.emulator.effects.effect_set import REGISTRY
+
+
+def test_one_master_seed_gives_one_suite_and_another_a_different_one():
+    a, b, c = draw_cases(11), draw_cases(11), draw_cases(12)
+    assert [(x.name, x.effects, x.seed) for x in a] == [(x.name, x.effects, x.seed) for x in b]
+    assert {x.name for x in a}.isdisjoint({x.name for x in c})
+    assert len({x.name for x in a}) == len(a)
+
+
+def test_the_suite_holds_pairs_triples_other_vehicles_and_clean_cases():
+    cases = draw_cases(5, singles=2)
+    sizes = collections.Counter(len(c.truth) for c in cases)
+    assert sizes[2] >= 10 and sizes[3] >= 3
+    assert all(len(set(c.truth)) == len(c.truth) for c in cases)             # distinct effects combined
+    assert {c.vehicle for c in cases} == {"", *VEHICLES}
+    clean = [c for c in cases if not c.truth]
+    assert any(c.prototype and c.tolerated == list(PROTOTYPE_OWN) for c in clean)
+    assert any(not c.prototype and not c.vehicle for c in clean)
+    assert all(EffectSet.from_dict(c.effects) is not None for c in cases)     # every draw is a valid file
+
+
+def _within(value, a, b):
+    lo, hi = min(a, b), max(a, b)
+    return lo - 1e-12 <= value <= hi + 1e-12
+
+
+@pytest.mark.parametrize("entry", sorted(MAGNITUDES))
+def test_draws_span_the_realistic_range_in_every_direction(entry):
+    rng = np.random.default_rng(3)
+    tables = [draw(entry, rng) for _ in range(200)]
+    weak, strong = MAGNITUDES[entry]
+    for key, w in weak.items():
+        if isinstance(w, (int, float)) and not isinstance(w, bool) and w != strong[key]:
+            values = np.array([t[key] for t in tables])
+            if entry == "torque_constant_error":
+                values = 1 - np.abs(1 - values)
+                assert (np.array([t[key] for t in tables]) > 1).any()              # above 1 as well
+            if entry == "wheel_radius":
+                values = 0.1 - np.abs(0.1 - values)
+                assert (np.array([t[key] for t in tables]) > 0.1).any()            # a larger wheel as well
+            assert all(_within(v, w, strong[key]) for v in values), key
+            span = abs(strong[key] - w)
+            assert values.max() - values.min() > 0.7 * span, key                   # the whole range
+    if entry == "payload":
+        quadrants = {(np.sign(t["com_offset"][0]), np.sign(t["com_offset"][1])) for t in tables}
+        assert len(quadrants) == 4
+    if entry == "incline":
+        headings = np.array([t["uphill_heading"] for t in tables])
+        assert (np.cos(headings) > 0.5).any() and (np.cos(headings) < -0.5).any()
+        assert (np.abs(np.cos(headings)) >= math.sin(REGISTRY["incline"].LATERAL_EXCLUSION) - 1e-9).all()
+    if entry == "torque_constant_error":
+        assert {t["drive"] for t in tables} == {"fl", "rl", "fr", "rr"}
+
+
+def test_the_range_ends_are_valid_effects_files_at_the_declared_ends():
+    for entry, (weak, strong) in MAGNITUDES.items():
+        ends = REGISTRY[effect_name(entry)].range_ends(entry)
+        assert len(ends) >= 2
+        for table in ends:
+            EffectSet.from_dict({effect_name(entry): table})
+
+
+def test_a_prototype_naming_its_own_steering_units_is_no_false_positive():
+    proto = Case("prototype_s1", {}, [], 1, prototype=True, tolerated=list(PROTOTYPE_OWN))
+    ideal = Case("ideal_s2", {}, [], 2)
+    results = [CaseResult(proto, accepted=["heavy_steering_units"], accepted_variants=[""]),
+               CaseResult(ideal, accepted=["heavy_steering_units"], accepted_variants=[""])]
+    assert results[0].top1 and not results[0].false_positives
+    assert not results[1].top1 and results[1].false_positives == ["heavy_steering_units"]
+    assert score(results)["clean_cases_with_false_positive"] == 1
+
+
+def test_the_results_file_records_the_master_seed_and_each_draw_and_a_rerun_resumes(tmp_path):
+    cases = [c for c in draw_cases(21, singles=1, pairs=1, triples=1, other_vehicle_singles=0, clean=1)
+             if len(c.truth) != 1][:3]
+    path = tmp_path / "r.json"
+    run = {"master_seed": 21, "reference": "twin"}
+    first = run_suite(cases[:2], tmp_path, workers=1, results_path=path, runner=probe_case, run=run)
+    assert not [r.error for r in first if r.error]
+    assert read_run(path) == run
+    assert {r.case.name: r.case.effects for r in read_results(path)} == {c.name: c.effects for c in cases[:2]}
+    again = run_suite(cases, tmp_path, workers=1, results_path=path, runner=_OnlyNew({cases[2].name}), run=run)
+    assert sorted(r.case.name for r in again) == sorted(c.name for c in cases)
+
+
+def test_an_unknown_reference_mode_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="reference"):
+        run_suite([], tmp_path, reference="nominal")
+
+
+class _OnlyNew:
+    """A picklable runner that refuses the cases already in the results file."""
+
+    def __init__(self, new):
+        self.new = new
+
+    def __call__(self, case, work, reference, quick):
+        if case.name not in self.new:
+            raise AssertionError(f"{case.name} ran again")
+        return probe_case(case, work, reference, quick)

@@ -1,0 +1,66 @@
+"""The campaign controller's robustness to an actuator dead time: the steering design's phase margin
+(python-control), the dead-time probe's fit, and a quick campaign at the realistic range's longest
+actuator delay completing inside the torque limit."""
+import json
+
+import numpy as np
+import pytest
+
+from qomni.ident.control_design import delay_robust_bandwidth, design_pid, phase_margin, steering_loop
+from qomni.ident.controller import ControllerSettings
+from qomni.ident.probe import fit_dead_time
+
+S = ControllerSettings()
+TS = 0.002
+
+
+def _margin(bandwidth, dead_time):
+    gains = design_pid(bandwidth, S.damping, TS, S.steering_integral_ratio)
+    return phase_margin(steering_loop(gains, TS, S.derivative_cutoff, dead_time), TS)
+
+
+def test_the_default_steering_loop_keeps_its_bandwidth_without_dead_time_and_loses_its_margin_with_one():
+    assert _margin(S.steering_bandwidth, 0.0) >= S.min_phase_margin
+    assert _margin(S.steering_bandwidth, 0.02) < 0                      # the limit cycle of a 20 ms delay
+    assert delay_robust_bandwidth(S.steering_bandwidth, S.damping, TS, S.steering_integral_ratio,
+                                  S.derivative_cutoff, 0.0, S.min_phase_margin) == S.steering_bandwidth
+
+
+@pytest.mark.parametrize("dead_time", [0.004, 0.01, 0.02, 0.03])
+def test_the_redesigned_loop_meets_the_phase_margin_with_the_dead_time(dead_time):
+    bw = delay_robust_bandwidth(S.steering_bandwidth, S.damping, TS, S.steering_integral_ratio,
+                                S.derivative_cutoff, dead_time, S.min_phase_margin)
+    assert bw < S.steering_bandwidth
+    assert _margin(bw, dead_time) >= S.min_phase_margin
+    assert _margin(bw + 1.0, dead_time) < S.min_phase_margin + 3.0      # the largest such bandwidth
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_phase_margin_agrees_with_python_control():
+    import control
+
+    loop = steering_loop(design_pid(30.0, 0.9, TS, 0.25), TS, 150.0, 0.004)
+    reference = control.margin(loop)[1]
+    assert phase_margin(loop, TS) == pytest.approx(reference, abs=0.5)
+
+
+@pytest.mark.parametrize("n", [0, 3, 10])
+def test_the_probe_fit_recovers_a_dead_time_in_quantized_noisy_samples(n):
+    rng = np.random.default_rng(n)
+    t = TS * np.arange(1, 26)
+    lsb = 2 * np.pi / 2**14
+    moved = 30.0 * 0.5 * np.maximum(t - n * TS, 0) ** 2 + rng.normal(0, 0.3 * lsb, t.size)
+    moved = np.round(moved / lsb) * lsb
+    got, c, _ = fit_dead_time(moved, TS, 15)
+    assert got == n and c == pytest.approx(30.0, rel=0.1)
+
+
+@pytest.mark.slow
+def test_a_quick_campaign_at_the_longest_realistic_actuator_delay_completes_inside_the_torque_limit(tmp_path):
+    from qomni.suite.range_ends import campaign_margins
+
+    row = campaign_margins({"actuator_delay": {"delay": 0.02}}, tmp_path / "run", seed=3)
+    assert row.completed, row.status
+    assert row.peak_torque_ratio < 0.9, row
+    meta = json.loads((tmp_path / "run" / "metadata.json").read_text())
+    assert meta["probe"]["dead_time"] == pytest.approx(0.02, abs=0.0041)
