@@ -247,3 +247,29 @@ def test_ramp_reaches_target_at_rate():
     while v != -50.0:
         v, n = ramp(v, -50.0, 1000.0, 2000.0, 0.01), n + 1
     assert n == 10 + 5 + 5                                              # slow down at 2000, speed up at 1000
+
+
+def test_profile_position_buffered_and_relative_set_points(master, unsupervised_server, plant):
+    """Without bit 5 a second set-point waits for the first to end; bit 6 makes it relative."""
+    node = master.drive[1]
+    frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))                # noqa: E731
+    node.sdo[0x2010][3].raw = round(plant.inertia * 1e6)
+    node.sdo[0x6081].raw, node.sdo[0x6083].raw, node.sdo[0x6084].raw = 2 * REV, 20 * REV, 20 * REV
+    node.sdo[0x607A].raw = REV // 2
+    _enable(master, node, 1, frame)
+    master.cycle([frame(0x1F)])
+    master.cycle([frame(0x0F)])
+    for _ in range(20):                                                 # under way to 0.5 rev
+        sw, pos, _ = _status(master.cycle([frame(0x0F)]))
+    assert 0 < pos < REV // 2 and not sw & 1 << 10
+    node.sdo[0x607A].raw = -REV // 4                                    # relative: 0.5 − 0.25 rev
+    sw, _, _ = _status(master.cycle([frame(0x0F | 1 << 6 | 1 << 4)]))   # buffered (bit 5 clear)
+    assert sw & 1 << 12
+    positions = []
+    for _ in range(600):
+        sw, pos, _ = _status(master.cycle([frame(0x0F | 1 << 6)]))
+        positions.append(pos)
+        if sw & 1 << 10:
+            break
+    assert max(positions) == pytest.approx(REV // 2, abs=300)           # the first target was reached first
+    assert abs(pos - REV // 4) <= node.sdo[0x6067].raw                  # then the relative one
