@@ -58,6 +58,8 @@ OBJECT_NAMES: dict[tuple[int, int], str] = {
     (TORQUE_ACTUAL, 0): "torque_actual",
     (0x6078, 0): "current_actual",
     (0x607A, 0): "target_position",
+    (0x6081, 0): "profile_velocity",
+    (0x60F4, 0): "following_error_actual",
     (0x60B2, 0): "torque_offset",
     (TARGET_VELOCITY, 0): "target_velocity",
     (POSITION_VALUE, 0): "position_value",
@@ -68,6 +70,7 @@ OBJECT_UNITS: dict[tuple[int, int], str] = {
     (TARGET_TORQUE, 0): "permille", (MAX_TORQUE, 0): "permille", (0x6074, 0): "permille",
     (TORQUE_ACTUAL, 0): "permille", (0x60B2, 0): "permille", (0x6078, 0): "permille",
     (0x6062, 0): "inc", (0x6063, 0): "inc", (POSITION_ACTUAL, 0): "inc", (0x607A, 0): "inc",
+    (0x60F4, 0): "inc", (0x6081, 0): "inc/s",
     (0x606B, 0): "inc/s", (VELOCITY_ACTUAL, 0): "inc/s", (TARGET_VELOCITY, 0): "inc/s",
     (POSITION_VALUE, 0): "counts",
 }

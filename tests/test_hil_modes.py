@@ -247,3 +247,64 @@ def test_ramp_reaches_target_at_rate():
     while v != -50.0:
         v, n = ramp(v, -50.0, 1000.0, 2000.0, 0.01), n + 1
     assert n == 10 + 5 + 5                                              # slow down at 2000, speed up at 1000
+
+
+def test_profile_position_buffered_and_relative_set_points(master, unsupervised_server, plant):
+    """Without bit 5 a second set-point waits for the first to end; bit 6 makes it relative."""
+    node = master.drive[1]
+    frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))                # noqa: E731
+    node.sdo[0x2010][3].raw = round(plant.inertia * 1e6)
+    node.sdo[0x6081].raw, node.sdo[0x6083].raw, node.sdo[0x6084].raw = 2 * REV, 20 * REV, 20 * REV
+    node.sdo[0x607A].raw = REV // 2
+    _enable(master, node, 1, frame)
+    master.cycle([frame(0x1F)])
+    master.cycle([frame(0x0F)])
+    for _ in range(20):                                                 # under way to 0.5 rev
+        sw, pos, _ = _status(master.cycle([frame(0x0F)]))
+    assert 0 < pos < REV // 2 and not sw & 1 << 10
+    node.sdo[0x607A].raw = -REV // 4                                    # relative: 0.5 − 0.25 rev
+    sw, _, _ = _status(master.cycle([frame(0x0F | 1 << 6 | 1 << 4)]))   # buffered (bit 5 clear)
+    assert sw & 1 << 12
+    positions = []
+    for _ in range(600):
+        sw, pos, _ = _status(master.cycle([frame(0x0F | 1 << 6)]))
+        positions.append(pos)
+        if sw & 1 << 10:
+            break
+    assert max(positions) == pytest.approx(REV // 2, abs=300)           # the first target was reached first
+    assert abs(pos - REV // 4) <= node.sdo[0x6067].raw                  # then the relative one
+
+
+def test_profile_position_and_homing_on_the_pybullet_vehicle(channel, master):
+    """The emulated vehicle standing on its wheels, default gains: PP 3 motor revolutions at 2 rev/s and
+    10 rev/s² ends near the trapezoid's 1.7 s on target; homing method 34 then completes at the home
+    offset (docs/drive_modes.md quotes these numbers)."""
+    from qomni.emulator.vehicle import Emulator
+
+    with Emulator() as emulator, VehicleServer(emulator, f"virtual:{channel}", sync_timeout=None):
+        node = master.drive[1]
+        frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))            # noqa: E731
+        node.sdo[0x6081].raw, node.sdo[0x6083].raw, node.sdo[0x6084].raw = 2 * REV, 10 * REV, 10 * REV
+        node.sdo[0x607A].raw = 3 * REV
+        _enable(master, node, 1, frame)
+        master.cycle([frame(0x1F)])
+        reached, velocity = None, []
+        for k in range(1000):
+            sw, pos, vel = _status(master.cycle([frame(0x0F)]))
+            velocity.append(vel)
+            if sw & 1 << 10:
+                reached = (k + 2) * T_S
+                break
+        assert reached == pytest.approx(3 / 2 + 2 / 10, abs=0.1)
+        assert abs(pos - 3 * REV) <= node.sdo[0x6067].raw
+        assert max(velocity) == pytest.approx(2 * REV, rel=0.08)        # J_ff = 0: a few % overshoot
+        node.sdo[0x6098].raw = 34
+        node.sdo[0x6099][2].raw = REV
+        node.sdo[0x609A].raw = 20 * REV
+        node.sdo[0x6060].raw = 6
+        master.cycle([frame(0x0F)])
+        for k in range(1000):
+            sw, pos, _ = _status(master.cycle([frame(0x1F)]))
+            if sw & 0x3400 == 0x1400:
+                break
+        assert sw & 0x3400 == 0x1400 and abs(pos) <= node.sdo[0x6067].raw

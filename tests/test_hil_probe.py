@@ -7,11 +7,13 @@ import json
 
 import can
 import canopen
+import pytest
 from typer.testing import CliRunner
 
 from qomni.cli import app
 from qomni.hil.device.server import VehicleServer
 from qomni.hil.tools.probe import probe, scan
+from qomni.hil.tools.timing_probe import measure
 
 from doubles import BITS, FakePlant
 
@@ -54,9 +56,39 @@ def test_cli_probe_table_json_and_empty_bus(channel, tmp_path):
                                      "--samples", "5", "--json", str(out)], env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
     assert "PP PV HM CSP CSV CST" in result.output and "CiA 406" in result.output
-    assert [r["node_id"] for r in json.loads(out.read_text())] == [1, 5]
+    assert [r["node_id"] for r in json.loads(out.read_text())["nodes"]] == [1, 5]
     result = runner.invoke(app, ["probe", "--bus", f"virtual:{channel}-empty", "--timeout", "0.05"])
     assert result.exit_code == 2 and "error: " in result.output and "no node answered" in result.output
     assert "Traceback" not in result.output
     result = runner.invoke(app, ["probe", "--bus", "udp_multicast:x"])
     assert result.exit_code == 2 and "error: " in result.output
+
+
+def test_timing_as_master_latency_sync_loss_and_reset(channel):
+    with VehicleServer(FakePlant(), f"virtual:{channel}") as server:
+        server.drives[0].set_default(0x1017, 0, 50)                   # heartbeat every 50 ms
+        server.drives[0].nmt.start_heartbeat(50)
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            report = measure(bus, 1, cycle=0.005, syncs=100, pause=0.3)
+        finally:
+            bus.shutdown()
+    assert report.syncs_answered == 100                              # lock-step: every SYNC answered
+    assert 0 < report.tpdo_first_p50 <= report.tpdo_last_p50 < 0.005
+    assert report.tpdo_last_p99 >= report.tpdo_last_p50
+    assert 0x8100 in report.emcy_on_missed_sync                       # SYNC loss, CiA 301 EMCY
+    assert report.tpdo_after_sync_returns
+    # the producer's 50 ms, seen through a loaded 2-core machine's thread scheduling
+    assert report.heartbeat_period == pytest.approx(0.05, rel=0.2) and report.heartbeat_jitter < 0.025
+    assert 0 <= report.boot_up_after_reset < 0.5
+
+
+def test_cli_timing_table(channel):
+    with VehicleServer(FakePlant(), f"virtual:{channel}"):
+        result = CliRunner().invoke(app, ["probe", "--bus", f"virtual:{channel}", "--node", "5", "--timing", "5",
+                                          "--syncs", "50", "--cycle", "0.005"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "SYNC → first TPDO" in result.output and "NMT reset node → boot-up" in result.output
+    result = CliRunner().invoke(app, ["probe", "--bus", f"virtual:{channel}-none", "--timeout", "0.05",
+                                      "--timing", "3"])
+    assert result.exit_code == 2

@@ -1,5 +1,8 @@
 """CiA 402 wheel drive node: power state machine, cyclic synchronous torque (CST, 0x6060 = 10) and
-cyclic synchronous velocity (CSV, 0x6060 = 9) modes.
+cyclic synchronous velocity (CSV, 0x6060 = 9) modes; profile position, profile velocity, homing and
+cyclic synchronous position are :mod:`.drive_modes` (dispatched by 0x6061 from :meth:`Drive402.latch_torque`),
+and the node is an LSS slave (:mod:`.lss`). The drive stores its EDS in 0x1021 (CiA 301 "store EDS") and
+keeps up to 4 kB of commissioning notes in the user data DOMAIN 0x2020.
 
 Source: CiA 402-2 (IEC 61800-7-201) §6 "device control" (state machine, controlword 0x6040 command
 coding, statusword 0x6041 state coding, abort connection option 0x6007, quick stop option 0x605A) and
