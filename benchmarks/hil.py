@@ -345,12 +345,13 @@ def main() -> None:
                   f"{_ratio(m[key], e[key])}")
         print(f"  {f'late cycles > T_s/2 ({view})':36s} {_pct(e['late_fraction']):>16s} "
               f"{_pct(m['late_fraction']):>16s} {_ratio(m['late_fraction'], e['late_fraction'])}")
-    print(f"  {'cycles answered incompletely':36s} {_pct(echo_master['incomplete_cycles'] / echo_master['syncs']):>16s} "
-          f"{_pct(emu_master['incomplete_cycles'] / emu_master['syncs']):>16s}   (master's view, by next SYNC)")
-    print(f"  {'master SYNC sends > T_s/2 late':36s} {_pct(echo_master['late_sends'] / echo_master['syncs']):>16s} "
-          f"{_pct(emu_master['late_sends'] / emu_master['syncs']):>16s}")
+    for label, key, note in (("cycles answered incompletely", "incomplete_cycles", "   (master's view, by next SYNC)"),
+                             ("master SYNC sends > T_s/2 late", "late_sends", "")):
+        print(f"  {label:36s} {_pct(echo_master[key] / echo_master['syncs']):>16s} "
+              f"{_pct(emu_master[key] / emu_master['syncs']):>16s}{note}")
     if emu.get("physics_ticks"):
-        print(f"  {'physics ticks > 1 cycle late':36s} {'':>16s} {_pct(emu['physics_late'] / emu['physics_ticks']):>16s}")
+        late_ticks = emu["physics_late"] / emu["physics_ticks"]
+        print(f"  {'physics ticks > 1 cycle late':36s} {'':>16s} {_pct(late_ticks):>16s}")
 
     bench = _bench_run_module()
     from qomni.emulator.description import VehicleDescription

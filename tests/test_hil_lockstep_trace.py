@@ -40,8 +40,9 @@ def test_lockstep_run_is_bit_identical_to_the_reference_trace():
         at = _first_mismatch(mine, theirs)
         assert at is None, f"boot phase, frames of the {who} differ from their frame {at} on"
     at = _first_mismatch(run[start[0]:], ref[start[1]:])
-    assert at is None, (f"frame {start[0] + at} differs: got {run[start[0] + at].tolist() if start[0] + at < len(run) else None}, "
-                        f"reference {ref[start[1] + at].tolist() if start[1] + at < len(ref) else None}")
+    if at is not None:
+        got, want = run[start[0]:][at:at + 1].tolist(), ref[start[1]:][at:at + 1].tolist()
+        raise AssertionError(f"frame {start[0] + at} differs: got {got}, reference {want} (id, DLC, data)")
     # bit-identical floats: compare the raw bytes, so that no tolerance and no NaN rule hides a change
     for key in ("plant_state", "measurement"):
         assert trace[key].shape == reference[key].shape, key

@@ -138,13 +138,17 @@ class DeviceListener(can.Listener):
     message, not a SYNC or an SDO request; remote (RTR) requests are answered by no object of these
     devices (CiA 301 advises against RTR). canopen's own listener passes every frame on by its number."""
 
-    def __init__(self, network: canopen.Network):
+    def __init__(self, network: canopen.Network, after_command=None):
         self.network = network
+        self.after_command = after_command
 
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
-        self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+        can_id = msg.arbitration_id
+        self.network.notify(can_id, msg.data, msg.timestamp)
+        if self.after_command is not None and (can_id == 0 or 0x600 < can_id < 0x680):
+            self.after_command()                   # NMT command or SDO request: may have disabled a drive
 
 
 class VehicleServer:
@@ -231,7 +235,7 @@ class VehicleServer:
             self.injector.on_bus_off_recovered = self._bus_off_recovered
             bus = FaultyBus(bus, self.injector, own_bus=self._own_bus)
         network = canopen.Network(bus)
-        network.listeners = [DeviceListener(network)]
+        network.listeners = [DeviceListener(network, self._follow_drive_torques)]
         network.NOTIFIER_CYCLE = 0.05      # short receive timeout: stop() returns quickly
         for node in self.nodes:
             network.add_node(node)
@@ -402,6 +406,13 @@ class VehicleServer:
         except Exception as exc:      # noqa: BLE001
             self.error = exc
             logger.exception("plant.set_motor_torques failed outside a SYNC")
+
+    def _follow_drive_torques(self) -> None:
+        """After an NMT command or SDO request: a drive it disabled stops its torque now (the watchdog
+        would within ``watchdog_period``)."""
+        with self._lock:
+            if any(d.applied_torque_nm != self._torque[i] for i, d in enumerate(self.drives)):
+                self._apply_drive_torques()
 
     def _watch(self) -> None:
         while not self._stop_event.wait(self._watchdog_period):

@@ -43,11 +43,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import re
 import socket
 import threading
 import time
 from dataclasses import dataclass
+
+from .socketcand_text import FAST_SEND, REMOTE, parse_send as _parse_send, stamp as frame_stamp
 
 logger = logging.getLogger(__name__)
 
@@ -288,7 +289,7 @@ class Hub:
                     sock.setsockopt(socket.IPPROTO_TCP, quickack, 1)
                 buffer += chunk
                 lines: list[bytes] = []           # frames of this chunk, forwarded in one write per client
-                stamp = _stamp(time.time())
+                stamp = frame_stamp(time.time())
                 start = 0
                 while True:
                     end = buffer.find(b">", start)
@@ -368,7 +369,7 @@ class Hub:
             reply(b"< ok >")
         elif command == "send":
             frame = _parse_send(args)
-            if frame is _REMOTE:
+            if frame is REMOTE:
                 self.remote_dropped += 1             # no answer: python-can reads "< error >" as a frame
                 if self.remote_dropped == 1:
                     logger.warning("hub: %s sent a remote (RTR) request; RTR is not forwarded", client.peer)
@@ -388,7 +389,7 @@ class Hub:
         """The ``< frame … >`` line of a well-formed standard-ID data frame ``< send ID LEN B… >`` from a
         client with an open channel (the hot path: no decoding into words, no error texts); None for
         every other element, which :meth:`_handle` then answers."""
-        match = _FAST_SEND.fullmatch(element)
+        match = FAST_SEND.fullmatch(element)
         if match is None or sender.channel is None:
             return None
         can_id, length = int(match[1], 16), int(match[2])
@@ -401,7 +402,7 @@ class Hub:
     def _broadcast(self, sender: _Client, can_id: int, extended: bool, data: bytes) -> None:
         self.frames += 1
         ident = f"{can_id:08X}" if extended else f"{can_id:03X}"
-        self._forward(sender, [f"< frame {ident} {_stamp(time.time())} {data.hex().upper()} >".encode("ascii")])
+        self._forward(sender, [f"< frame {ident} {frame_stamp(time.time())} {data.hex().upper()} >".encode("ascii")])
 
     def _forward(self, sender: _Client, lines: list[bytes]) -> None:
         """Hand frame lines (in order) to every other raw-mode client on the sender's channel, in one write
@@ -430,39 +431,6 @@ class Hub:
                 else:
                     client.writer.write(line)
                     room -= len(line)
-
-
-#: What :func:`_parse_send` returns for a remote request (LEN > 0 without data: python-can's client sends
-#: an RTR frame so).
-_REMOTE = "remote"
-_HEX = re.compile(r"[0-9A-Fa-f]{1,8}")
-#: ``< send ID LEN B0 … >`` with a standard (≤ 3 digit) ID and up to 8 data bytes: the hub's hot path.
-_FAST_SEND = re.compile(rb"\s*<\s*send\s+([0-9A-Fa-f]{1,3})\s+([0-8])((?:\s+[0-9A-Fa-f]{1,2}){0,8})\s*>")
-
-
-def _stamp(now: float) -> str:
-    """SEC.USEC of a Unix time (socketcand's frame time stamp)."""
-    sec = int(now)
-    return f"{sec}.{int((now - sec) * 1e6):06d}"
-
-
-def _parse_send(args: list[str]) -> tuple[int, bool, bytes] | str:
-    """``ID LEN B0 ...`` → (id, extended, data), :data:`_REMOTE`, or an error text. IDs are unsigned
-    hexadecimal: up to 3 digits an 11-bit identifier (≤ 0x7FF), more a 29-bit one (≤ 0x1FFFFFFF)."""
-    if len(args) < 2:
-        return "usage: send ID LEN DATA"
-    if not all(_HEX.fullmatch(a) for a in args) or any(len(b) > 2 for b in args[2:]) or len(args[1]) > 1:
-        return "send: ID, LEN and data must be unsigned hexadecimal (data bytes of two digits)"
-    can_id, length = int(args[0], 16), int(args[1], 16)
-    data = bytes(int(b, 16) for b in args[2:])
-    extended = len(args[0]) > 3
-    if can_id > (0x1FFFFFFF if extended else 0x7FF):
-        return "send: ID out of range"
-    if 0 < length <= 8 and not data:
-        return _REMOTE
-    if not 0 <= length <= 8 or len(data) != length:
-        return "send: LEN must be 0..8 and equal the number of data bytes"
-    return can_id, extended, data
 
 
 def main(argv: list[str] | None = None) -> None:
