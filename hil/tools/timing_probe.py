@@ -126,8 +126,11 @@ def measure(bus: can.BusABC, node_id: int, cycle: float = 0.01, syncs: int = 300
 
 
 def _send(bus: can.BusABC, cob_id: int, data: bytes) -> float:
+    """Send a frame; returns the time it was handed to the bus (taken before: an in-process bus may deliver
+    the answers, timestamped, before ``send`` returns)."""
+    t = time.time()
     bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
-    return time.time()
+    return t
 
 
 def _tpdo_latencies(report: TimingReport, sent: list[float], frames, cycle: float) -> None:
