@@ -6,7 +6,10 @@ for fitting and validates the result (Fig. 6). Both write their result into the 
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
+
+from qomni.datasheet import DataSheet
 
 from . import filtering
 from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
@@ -14,35 +17,83 @@ from .result import IdentificationResult
 from .estimation import estimate
 from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
                              identification_blocks, validation_blocks)
-from .rundir import (IDENTIFICATION_JSON, METADATA, VALIDATION_JSON, b_w_source, load_identification, load_run,
-                     require_complete, write_json)
+from .recording import Signals
+from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
+                     b_w_source, load_identification, load_run, read_json, require_complete, write_json)
+from .single_axis import identify_single_axis
+from .torque_timing import TorqueLag, check_lag, estimate_torque_lag, shift_torque
 from .validation import ValidationResult, compare_generalized_torques
 
 
-def identify_run(run_dir: str | Path) -> IdentificationResult:
-    """Identify from a run directory and write ``identification.json`` into it."""
+def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
+                 estimator: str = "wls") -> IdentificationResult:
+    """Identify from a run directory and write ``identification.json`` into it.
+
+    Args:
+        run_dir: a campaign's run directory.
+        torque_lag: ``"auto"`` estimates the lag of the reported torque behind the applied one from the
+            campaign (:mod:`.torque_timing`); a number (s) is a known lag. The torque is corrected by it
+            before the fit, the single-axis B_w too when the run has a single-axis recording.
+        estimator: one of :data:`.estimators.ESTIMATORS`.
+    Raises:
+        RunDirectoryError, RecordingError, DataSheetError: the run directory; IdentifiabilityError: the
+        campaign does not determine p₁; TorqueTimingError: the lag; ValueError: an unknown estimator.
+    """
     run_dir = Path(run_dir)
     signals, sheet, meta = load_run(run_dir)
     require_complete(meta, IDENTIFICATION_STEPS, str(run_dir / METADATA))
     B_w, source = b_w_source(run_dir, sheet)
-    lag = correlation_lag(sheet.drive.cycle_time)
-    result = estimate(identification_blocks(signals, sheet), B_w,
-                      velocity_threshold=VELOCITY_THRESHOLD, correlation_lag=lag)
+    ts = sheet.drive.cycle_time
+    lag = correlation_lag(ts)
+    blocks_of = lambda s: identification_blocks(s, sheet)  # noqa: E731
+    if torque_lag == "auto":
+        timing = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+    else:
+        timing = TorqueLag(check_lag(torque_lag), "configured", ts)
+    if (run_dir / SINGLE_AXIS_DIR / SIGNALS).exists() and single_axis_lag(run_dir) != timing.value:
+        identify_single_axis(run_dir, sheet, torque_lag=timing.value)
+        B_w, source = b_w_source(run_dir, sheet)
+    result = estimate(blocks_of(shift_torque(signals, timing.value)), B_w,
+                      velocity_threshold=VELOCITY_THRESHOLD, correlation_lag=lag, estimator=estimator)
     data = result.to_json_dict()
     data["parameters"]["B_w"]["source"] = source
     data["filter"] = {"omega_g": filtering.OMEGA_G, "unit": "rad/s", "zero_phase": True}
     data["velocity_threshold"] = VELOCITY_THRESHOLD
     data["coulomb_velocity_cutoff"] = {"value": COULOMB_VELOCITY_CUTOFF, "unit": "rad/s"}
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
+    data["torque_lag"] = timing.to_json_dict()
     data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS)}
     write_json(run_dir / IDENTIFICATION_JSON, data)
     return result
 
 
+def single_axis_lag(run_dir: Path) -> float:
+    """The torque lag (s) the run's ``single_axis.json`` was identified with (0 when it says none)."""
+    path = run_dir / SINGLE_AXIS_JSON
+    if not path.exists():
+        return math.nan
+    return float(read_json(path).get("torque_lag", {}).get("value", 0.0))
+
+
+def identified_torque_lag(run_dir: Path) -> float:
+    """The torque lag (s) stored in the run's ``identification.json`` (0 when it has none).
+
+    Raises: RunDirectoryError (no identification.json), TorqueTimingError (an invalid lag)."""
+    data = read_json(run_dir / IDENTIFICATION_JSON)
+    return check_lag(data.get("torque_lag", {}).get("value", 0.0))
+
+
+def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
+    """:func:`load_run` with the torque corrected by the lag of ``identification.json``."""
+    run_dir = Path(run_dir)
+    signals, sheet, meta = load_run(run_dir)
+    return shift_torque(signals, identified_torque_lag(run_dir)), sheet, meta
+
+
 def validate_run(run_dir: str | Path) -> ValidationResult:
     """Validate ``identification.json`` on the lane change and write ``validation.json``."""
     run_dir = Path(run_dir)
-    signals, sheet, meta = load_run(run_dir)
+    signals, sheet, meta = load_corrected_run(run_dir)
     require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     result = load_identification(run_dir)
     blocks = validation_blocks(signals, sheet)

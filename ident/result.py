@@ -40,6 +40,9 @@ class IdentificationResult:
         Covariance of p₁ (order ``P1_NAMES``) of the reported fit.
     values_ls, std_ls : dict[str, float]
         First-pass (paper's unweighted-row) estimates and stds.
+    estimator : str
+        The estimator of ``values`` (:data:`.estimators.ESTIMATORS`); ``estimator_info`` its details
+        (robust weights, active bounds, instruments).
     """
 
     values: dict[str, float]
@@ -56,6 +59,8 @@ class IdentificationResult:
     covariance: np.ndarray | None = None
     values_ls: dict[str, float] = field(default_factory=dict)
     std_ls: dict[str, float] = field(default_factory=dict)
+    estimator: str = "wls"
+    estimator_info: dict = field(default_factory=dict)
 
     @property
     def p1(self) -> np.ndarray:
@@ -96,6 +101,7 @@ class IdentificationResult:
             "condition_number_definition": "cond(Theta_1w^T Theta_1w), column-norm weighted (25)",
             "condition_number_channel_weighted": self.condition_number_channel_weighted,
             "method": self.method,
+            "estimator": {"name": self.estimator, **self.estimator_info},
             "velocity_threshold": self.velocity_threshold,
             "rows_used": dict(self.rows_used),
             "rows_total": dict(self.rows_total),
@@ -146,5 +152,7 @@ class IdentificationResult:
             covariance=cov,
             values_ls={k: float(v["value"]) for k, v in first.items()},
             std_ls={k: float(v["std"]) for k, v in first.items()},
+            estimator=str(d.get("estimator", {}).get("name", "wls")),
+            estimator_info={k: v for k, v in d.get("estimator", {}).items() if k != "name"},
         )
 

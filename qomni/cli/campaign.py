@@ -131,9 +131,9 @@ def single_axis_command(
 def _identify_and_report(run_dir: Path) -> None:
     from qomni.ident.identify import identify_run, validate_run
 
-    result = guarded(lambda: identify_run(run_dir))
+    result = guarded(lambda: _timed(lambda: identify_run(run_dir)))
     _print_parameters(result)
-    validation = guarded(lambda: validate_run(run_dir))
+    validation = guarded(lambda: _timed(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, result, validation)
 
@@ -167,11 +167,11 @@ def _print_validation(validation) -> None:
 
 
 def _plots(run_dir: Path, result, validation) -> None:
-    from qomni.ident.regressor_rows import identification_blocks, validation_blocks
-    from qomni.ident.rundir import load_run
+    from qomni.ident.identify import load_corrected_run
     from qomni.ident.plots import torque_comparison
+    from qomni.ident.regressor_rows import identification_blocks, validation_blocks
 
-    signals, sheet, _ = load_run(run_dir)
+    signals, sheet, _ = guarded(lambda: load_corrected_run(run_dir))
     times = {name: signals.of_step(name).time for name in signals.steps()}
     torque_comparison(identification_blocks(signals, sheet), times, result,
                       run_dir / FIG_IDENTIFICATION,
@@ -182,12 +182,47 @@ def _plots(run_dir: Path, result, validation) -> None:
                       nrmse=validation.nrmse)
 
 
+ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Tukey bisquare) against outlier rows; "
+                  "iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
+                  "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
+TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque: 'auto' estimates it "
+                   "from the campaign, a number is a known lag in seconds (docs/conventions.md).")
+
+
+def _timed(fn):
+    """``fn()``, or a plain error for a torque lag that cannot be estimated or applied."""
+    from qomni.ident.torque_timing import TorqueTimingError
+
+    try:
+        return fn()
+    except TorqueTimingError as exc:
+        fail(str(exc))
+
+
+def parse_torque_lag(value: str) -> str | float:
+    """``"auto"`` or a lag in seconds; anything else ends the command with a plain error."""
+    if value == "auto":
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        fail(f"--torque-lag must be 'auto' or a number of seconds, got {value!r}")
+
+
 @app.command()
-def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campaign.")):
+def identify(
+    run_dir: Path = typer.Argument(..., help="Run directory of a campaign."),
+    estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
+    torque_lag: str = typer.Option("auto", "--torque-lag", help=TORQUE_LAG_HELP),
+):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
+    from qomni.ident.estimators import ESTIMATORS
     from qomni.ident.identify import identify_run
 
-    _print_parameters(guarded(lambda: identify_run(run_dir)))
+    if estimator not in ESTIMATORS:
+        fail(f"--estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+    lag = parse_torque_lag(torque_lag)
+    _print_parameters(guarded(lambda: _timed(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
     console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
 
@@ -197,7 +232,7 @@ def validate(run_dir: Path = typer.Argument(..., help="Run directory with identi
     from qomni.ident.rundir import load_identification
     from qomni.ident.identify import validate_run
 
-    validation = guarded(lambda: validate_run(run_dir))
+    validation = guarded(lambda: _timed(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, guarded(lambda: load_identification(run_dir)), validation)
     console.print(f"written {run_dir / VALIDATION_JSON}")
