@@ -37,7 +37,9 @@ import numpy as np
 
 from qomni.conventions import P1_NAMES, P2_NAMES, PARAMETER_NAMES
 
+from .bootstrap import N_REPLICATES, WINDOW_CORRELATION_LENGTHS, bootstrap_std
 from .estimators import solve
+from .parameter_report import parameter_report
 from .least_squares import RANK_TOL, Fit, IdentifiabilityError, channel_weights, lstsq, per_channel, rms
 from .regressor import DEFAULT_VELOCITY_THRESHOLD, RegressorBlock, row_mask, stack_blocks
 from .result import IdentificationResult
@@ -139,6 +141,11 @@ def estimate(
                 lower=PHYSICAL_LOWER_BOUNDS, rank_tol=rank_tol)
     cond_w = lstsq(theta1 * wrow[:, None], y * wrow, P1_NAMES, rank_tol).cond if channel_weighting else None
     final = Fit(p=sol.p, cov=sol.cov, cond=fit.cond, residual=sol.residual)
+    wf = sol.weights
+    report = parameter_report(theta1 * wf[:, None], ch, sol.p, sol.cov, P1_NAMES, rank_tol)
+    window = WINDOW_CORRELATION_LENGTHS * max(correlation_lag, 1)
+    std_boot = bootstrap_std(theta1 * wf[:, None], y * wf, ch, window,
+                             instruments=None if z is None else z * wf[:, None])
     if estimator != "wls":
         method = f"{method}+{estimator}"
 
@@ -159,6 +166,10 @@ def estimate(
         std_ls=std_ls,
         estimator=estimator,
         estimator_info=sol.info,
+        identifiability=report,
+        std_bootstrap=dict(zip(P1_NAMES, std_boot.tolist())),
+        bootstrap={"method": "moving-block bootstrap over campaign windows, stratified by channel",
+                   "window_rows": window, "replicates": N_REPLICATES, "seed": 0},
     )
 
 

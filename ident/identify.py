@@ -55,13 +55,13 @@ def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
         B_w, source = b_w_source(run_dir, sheet)
     result = estimate(blocks_of(shift_torque(signals, timing.value)), B_w,
                       velocity_threshold=VELOCITY_THRESHOLD, correlation_lag=lag, estimator=estimator)
+    result.torque_lag = timing.to_json_dict()
     data = result.to_json_dict()
     data["parameters"]["B_w"]["source"] = source
     data["filter"] = {"omega_g": filtering.OMEGA_G, "unit": "rad/s", "zero_phase": True}
     data["velocity_threshold"] = VELOCITY_THRESHOLD
     data["coulomb_velocity_cutoff"] = {"value": COULOMB_VELOCITY_CUTOFF, "unit": "rad/s"}
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
-    data["torque_lag"] = timing.to_json_dict()
     data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS)}
     write_json(run_dir / IDENTIFICATION_JSON, data)
     return result

@@ -43,6 +43,12 @@ class IdentificationResult:
     estimator : str
         The estimator of ``values`` (:data:`.estimators.ESTIMATORS`); ``estimator_info`` its details
         (robust weights, active bounds, instruments).
+    identifiability : dict
+        Per-parameter report (:mod:`.parameter_report`): determining step, relative σ, correlations.
+    std_bootstrap, bootstrap : dict
+        σ_p from a moving-block bootstrap over campaign windows (:mod:`.bootstrap`), and its settings.
+    torque_lag : dict
+        The lag of the reported torque the rows were corrected for (:mod:`.torque_timing`), if any.
     """
 
     values: dict[str, float]
@@ -61,6 +67,10 @@ class IdentificationResult:
     std_ls: dict[str, float] = field(default_factory=dict)
     estimator: str = "wls"
     estimator_info: dict = field(default_factory=dict)
+    identifiability: dict = field(default_factory=dict)
+    std_bootstrap: dict[str, float] = field(default_factory=dict)
+    bootstrap: dict = field(default_factory=dict)
+    torque_lag: dict = field(default_factory=dict)
 
     @property
     def p1(self) -> np.ndarray:
@@ -81,18 +91,35 @@ class IdentificationResult:
         """{name: value} for all 11 parameters."""
         return dict(zip(PARAMETER_NAMES, self.p.tolist()))
 
+    def report_row(self, name: str) -> tuple[str, str, str, str]:
+        """(relative σ, bootstrap σ, determining steps, strongest correlation) of p₁ entry ``name`` as text
+        ("-" where the result has no report)."""
+        rep = self.identifiability.get(name, {})
+        rel = rep.get("relative_std")
+        strongest = rep.get("strongest_correlation")
+        boot = self.std_bootstrap.get(name)
+        return (f"{100 * rel:.2f} %" if rel is not None else "-",
+                f"{boot:.4f}" if boot is not None else "-",
+                ", ".join(rep.get("determined_by", [])) or "-",
+                f"{strongest['rho']:+.2f} {strongest['with']}" if strongest else "-")
+
     def table(self) -> str:
-        """Plain-text table like the paper's Table 2."""
-        lines = [f"{'Name':<6} {'Value':>12} {'Std':>10}  Unit"]
+        """Plain-text table like the paper's Table 2, with the identifiability report."""
+        lines = [f"{'Name':<6} {'Value':>12} {'Std':>10}  {'Unit':<10} {'Rel. std':>9} {'Std boot':>9}  "
+                 f"{'Determined by':<32} Strongest corr."]
         for n in P1_NAMES:
-            lines.append(f"{n:<6} {self.values[n]:>12.4f} {self.std[n]:>10.4f}  {PARAMETER_UNITS[n]}")
+            rel, boot, by, rho = self.report_row(n)
+            lines.append(f"{n:<6} {self.values[n]:>12.4f} {self.std[n]:>10.4f}  {PARAMETER_UNITS[n]:<10} "
+                         f"{rel:>9} {boot:>9}  {by:<32} {rho}")
         lines.append(f"{'B_w':<6} {self.B_w:>12.4f} {'(fixed)':>10}  {PARAMETER_UNITS['B_w']}")
         lines.append(f"cond(Theta_1w^T Theta_1w) = {self.condition_number:.2f}")
         return "\n".join(lines)
 
     def to_json_dict(self) -> dict:
         params: dict = {
-            n: {"value": self.values[n], "std": self.std[n], "unit": PARAMETER_UNITS[n]} for n in P1_NAMES
+            n: {"value": self.values[n], "std": self.std[n], "unit": PARAMETER_UNITS[n],
+                **({"std_bootstrap": self.std_bootstrap[n]} if n in self.std_bootstrap else {})}
+            for n in P1_NAMES
         }
         params["B_w"] = {"value": self.B_w, "unit": PARAMETER_UNITS["B_w"], "fixed": True}
         d = {
@@ -102,6 +129,9 @@ class IdentificationResult:
             "condition_number_channel_weighted": self.condition_number_channel_weighted,
             "method": self.method,
             "estimator": {"name": self.estimator, **self.estimator_info},
+            "bootstrap": dict(self.bootstrap),
+            "identifiability": self.identifiability,
+            **({"torque_lag": dict(self.torque_lag)} if self.torque_lag else {}),
             "velocity_threshold": self.velocity_threshold,
             "rows_used": dict(self.rows_used),
             "rows_total": dict(self.rows_total),
@@ -154,5 +184,10 @@ class IdentificationResult:
             std_ls={k: float(v["std"]) for k, v in first.items()},
             estimator=str(d.get("estimator", {}).get("name", "wls")),
             estimator_info={k: v for k, v in d.get("estimator", {}).items() if k != "name"},
+            identifiability=dict(d.get("identifiability", {})),
+            std_bootstrap={n: float(params[n]["std_bootstrap"]) for n in P1_NAMES
+                           if "std_bootstrap" in params[n]},
+            bootstrap=dict(d.get("bootstrap", {})),
+            torque_lag=dict(d.get("torque_lag", {})),
         )
 

@@ -114,6 +114,10 @@ def test_cli_identify_takes_estimator_and_torque_lag(recorded, tmp_path):
     assert data["estimator"]["name"] == "consistent"
     assert data["torque_lag"] == pytest.approx({**data["torque_lag"], "value": 0.002, "cycles": 1.0})
     assert data["torque_lag"]["source"] == "configured"
+    assert data["identifiability"]["d_vl"]["determined_by"] == ["steer_left"]
+    assert data["identifiability"]["m_ch"]["determined_by"] == ["straight"]
+    assert all(data["parameters"][n]["std_bootstrap"] > 0 for n in CHASSIS)
+    assert "Determined by" in ok.output and "torque lag" in ok.output
     for args in (["--torque-lag", "soon"], ["--torque-lag", "0.5"], ["--estimator", "ols"]):
         bad = runner.invoke(app, ["identify", str(run_dir), *args])
         assert bad.exit_code == 2 and "error:" in bad.output and "Traceback" not in bad.output

@@ -141,14 +141,22 @@ def _identify_and_report(run_dir: Path) -> None:
 def _print_parameters(result) -> None:
     from qomni.conventions import PARAMETER_UNITS
 
-    table = Table(title="Identified parameters (paper Table 2)")
-    for col in ("Name", "Value", "Std. deviation", "Unit"):
-        table.add_column(col, justify="right" if col in ("Value", "Std. deviation") else "left")
+    table = Table(title=f"Identified parameters (paper Table 2), estimator {result.estimator}")
+    for col in ("Name", "Value", "Std. deviation", "Unit", "Rel. std", "Std (bootstrap)", "Determined by",
+                "Strongest correlation"):
+        table.add_column(col, justify="right" if col in ("Value", "Std. deviation", "Rel. std",
+                                                         "Std (bootstrap)") else "left")
     for name, value in result.values.items():
-        table.add_row(name, f"{value:.4f}", f"{result.std[name]:.4f}", PARAMETER_UNITS[name])
-    table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"])
+        table.add_row(name, f"{value:.4f}", f"{result.std[name]:.4f}", PARAMETER_UNITS[name],
+                      *result.report_row(name))
+    table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"], "", "", "", "")
     console.print(table)
     console.print(f"cond(Θ̂₁ᵀΘ̂₁) = {result.condition_number:.2f}  (paper: 11.56)")
+    lag = result.torque_lag
+    if lag:
+        std = f" ± {1e3 * lag['std']:.3f}" if lag.get("std") is not None else ""
+        console.print(f"torque lag (0x6077 behind the applied torque, {lag['source']}): "
+                      f"{1e3 * lag['value']:.3f}{std} ms = {lag['cycles']:.2f} cycles")
 
 
 def _print_validation(validation) -> None:
