@@ -20,9 +20,14 @@ from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correl
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
                      b_w_source, load_identification, load_run, read_json, require_complete, write_json)
+from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .torque_timing import TorqueLag, check_lag, estimate_torque_lag, shift_torque
 from .validation import ValidationResult, compare_generalized_torques
+
+
+#: Instrument refinements of the ``iv`` estimator: WLS → instruments → IV → instruments → IV.
+IV_ITERATIONS = 2
 
 
 def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
@@ -53,8 +58,16 @@ def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
     if (run_dir / SINGLE_AXIS_DIR / SIGNALS).exists() and single_axis_lag(run_dir) != timing.value:
         identify_single_axis(run_dir, sheet, torque_lag=timing.value)
         B_w, source = b_w_source(run_dir, sheet)
-    result = estimate(blocks_of(shift_torque(signals, timing.value)), B_w,
-                      velocity_threshold=VELOCITY_THRESHOLD, correlation_lag=lag, estimator=estimator)
+    corrected = shift_torque(signals, timing.value)
+    blocks = blocks_of(corrected)
+    fit = lambda name, z=None: estimate(blocks, B_w, velocity_threshold=VELOCITY_THRESHOLD,  # noqa: E731
+                                        correlation_lag=lag, estimator=name, instruments=z)
+    if estimator == "iv":
+        result = fit("wls")
+        for _ in range(IV_ITERATIONS):     # instruments from the model of the previous estimate
+            result = fit("iv", simulated_instruments(corrected, sheet, result.p))
+    else:
+        result = fit(estimator)
     result.torque_lag = timing.to_json_dict()
     data = result.to_json_dict()
     data["parameters"]["B_w"]["source"] = source
