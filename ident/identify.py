@@ -23,7 +23,7 @@ from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SI
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .torque_timing import TorqueLag, check_lag, estimate_torque_lag, shift_torque
-from .validation import ValidationResult, compare_generalized_torques
+from .validation import ValidationResult, compare_generalized_torques, stick_slip_comparison
 
 
 #: Instrument refinements of the ``iv`` estimator: WLS → instruments → IV → instruments → IV.
@@ -114,16 +114,17 @@ def validate_run(run_dir: str | Path) -> ValidationResult:
     data = validation.to_json_dict()
     data["step"] = VALIDATION_STEP
     # As the paper's Fig. 6, all rows count above. Rows in stiction carry static friction that no
-    # tanh(v/ε) model predicts; the same comparison over moving rows only separates that effect.
-    moving = {}
-    for block in blocks:
-        try:
-            one = compare_generalized_torques([block], result, velocity_threshold=VELOCITY_THRESHOLD)
-            moving.update({c: {"nrmse": v, "n_rows": one.channels[c].n_rows}
-                           for c, v in one.nrmse.items()})
-        except ValueError:  # no row of this channel moves faster than its stiction threshold
-            moving[str(block.channel[0])] = {"nrmse": None, "n_rows": 0}
+    # tanh(v/ε) model predicts: moving rows are compared with the model, sticking rows with the model
+    # made able to stick (a stick-slip switch), each on its own.
+    split = stick_slip_comparison(blocks, result, VELOCITY_THRESHOLD)
+    moving = {c: (v["moving"] if v["moving"]["n_rows"] else {"nrmse": None, "n_rows": 0})
+              for c, v in split.items()}
     data["moving_rows"] = {"velocity_threshold": VELOCITY_THRESHOLD, "channels": moving}
+    data["sticking_rows"] = {"model": "stick-slip switch: friction balances the torque within the static "
+                                      "friction band F_s (the Coulomb level)",
+                             "channels": {c: dict(v["sticking"], moving_share=v["moving_share"])
+                                          for c, v in split.items()}}
     validation.moving = moving
+    validation.sticking = data["sticking_rows"]["channels"]
     write_json(run_dir / VALIDATION_JSON, data)
     return validation

@@ -70,3 +70,22 @@ def test_identifiability_report_names_the_determining_step():
     rho = np.array(rep["correlation"]["matrix"])
     assert np.allclose(np.diag(rho), 1.0) and np.allclose(rho, rho.T)
     assert "C_l" in res.table() and "steer_left" in res.table()
+
+
+def test_stick_slip_validation_splits_moving_and_sticking_rows():
+    from qomni.ident.validation import stick_slip_comparison
+
+    (block,) = synthetic_blocks(noise={}, names=("steer_left",))
+    stuck = np.abs(block.velocity) < 0.2
+    f_s = P_TRUE[2] + P_TRUE[9] * np.max(np.abs(block.Theta[:, 9]))   # d_cl + 2k d_cw
+    inside = block.tau.copy()
+    inside[stuck] = 0.5 * f_s * np.sign(block.velocity[stuck])        # held by static friction
+    outside = inside.copy()
+    outside[stuck] = 2.0 * f_s                                         # more than stiction can hold
+    for tau, sticking_error in ((inside, False), (outside, True)):
+        b = RegressorBlock(block.Theta, tau, block.velocity, block.channel)
+        (res,) = stick_slip_comparison([b], P_TRUE, 0.2).values()
+        assert res["moving"]["nrmse"] == pytest.approx(0.0, abs=1e-12)
+        assert res["sticking"]["n_rows"] == stuck.sum() and res["sticking"]["static_friction"] == pytest.approx(f_s)
+        assert (res["sticking"]["nrmse"] > 0.1) == sticking_error
+        assert res["moving_share"] == pytest.approx(1 - stuck.mean())

@@ -165,12 +165,15 @@ def _print_validation(validation) -> None:
     table.add_column("NRMSE", justify="right")
     table.add_column("RMS error", justify="right")
     table.add_column("NRMSE, moving rows", justify="right")
-    moving = validation.moving
+    table.add_column("NRMSE, sticking rows (stick-slip)", justify="right")
+    moving, sticking = validation.moving, validation.sticking
     for channel, value in validation.nrmse.items():
-        m = moving.get(channel, {})
+        m, s = moving.get(channel, {}), sticking.get(channel, {})
         cell = (f"{100 * m['nrmse']:.1f} % ({m['n_rows']} rows)" if m.get("nrmse") is not None
                 else "no moving rows")
-        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell)
+        stuck = (f"{100 * s['nrmse']:.1f} % ({s['n_rows']} rows)" if s.get("nrmse") is not None
+                 else "no sticking rows")
+        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell, stuck)
     console.print(table)
 
 
