@@ -17,6 +17,11 @@ from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICA
 from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
                       vehicle_link)
 
+ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
+                  "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
+                  "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
+TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque: 'auto' estimates it "
+                   "from the campaign, a number is a known lag in seconds (docs/conventions.md).")
 
 
 @app.command()
@@ -41,12 +46,15 @@ def campaign(
         None, help="Effects file (TOML, docs/effects.md) for the embedded emulator: the ideal vehicle "
                    "plus the effects it lists. Default: the prototype as described."),
     force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
+    estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
+    torque_lag: str = typer.Option("auto", "--torque-lag", help=TORQUE_LAG_HELP),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = load_datasheet(vehicle, datasheet)
+    lag = _identify_options(estimator, torque_lag)
     if faults is not None and bus is not None:
         fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
               "serving the vehicle on --bus")
@@ -85,7 +93,7 @@ def campaign(
             f"{cob} {n}×" for cob, n in meta["missed_samples"].items()))
     console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
                   f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
-    _identify_and_report(out)
+    _identify_and_report(out, estimator, lag)
     console.print(f"total wall time {time.perf_counter() - started:.1f} s")
 
 
@@ -128,10 +136,10 @@ def single_axis_command(
     _single_axis(out, bus, vehicle, sheet, seed, gui)
 
 
-def _identify_and_report(run_dir: Path) -> None:
+def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
     from qomni.ident.identify import identify_run, validate_run
 
-    result = guarded(lambda: _timed(lambda: identify_run(run_dir)))
+    result = guarded(lambda: _timed(lambda: identify_run(run_dir, torque_lag=torque_lag, estimator=estimator)))
     _print_parameters(result)
     validation = guarded(lambda: _timed(lambda: validate_run(run_dir)))
     _print_validation(validation)
@@ -193,12 +201,6 @@ def _plots(run_dir: Path, result, validation) -> None:
                       nrmse=validation.nrmse)
 
 
-ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Tukey bisquare) against outlier rows; "
-                  "iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
-                  "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
-TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque: 'auto' estimates it "
-                   "from the campaign, a number is a known lag in seconds (docs/conventions.md).")
-
 
 def _timed(fn):
     """``fn()``, or a plain error for a torque lag that cannot be estimated or applied."""
@@ -210,14 +212,19 @@ def _timed(fn):
         fail(str(exc))
 
 
-def parse_torque_lag(value: str) -> str | float:
-    """``"auto"`` or a lag in seconds; anything else ends the command with a plain error."""
-    if value == "auto":
-        return value
+def _identify_options(estimator: str, torque_lag: str) -> str | float:
+    """Check --estimator; --torque-lag as ``"auto"`` or seconds. Anything else ends the command with a
+    plain error."""
+    from qomni.ident.estimators import ESTIMATORS
+
+    if estimator not in ESTIMATORS:
+        fail(f"--estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+    if torque_lag == "auto":
+        return torque_lag
     try:
-        return float(value)
+        return float(torque_lag)
     except ValueError:
-        fail(f"--torque-lag must be 'auto' or a number of seconds, got {value!r}")
+        fail(f"--torque-lag must be 'auto' or a number of seconds, got {torque_lag!r}")
 
 
 @app.command()
@@ -227,12 +234,9 @@ def identify(
     torque_lag: str = typer.Option("auto", "--torque-lag", help=TORQUE_LAG_HELP),
 ):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
-    from qomni.ident.estimators import ESTIMATORS
     from qomni.ident.identify import identify_run
 
-    if estimator not in ESTIMATORS:
-        fail(f"--estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
-    lag = parse_torque_lag(torque_lag)
+    lag = _identify_options(estimator, torque_lag)
     _print_parameters(guarded(lambda: _timed(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
     console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
