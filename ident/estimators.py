@@ -144,6 +144,8 @@ def consistent(theta, y, ch, rows, w, lag, names, lower: Sequence[float], rank_t
     xw = theta * w[:, None]
     scale = np.linalg.norm(xw, axis=0)
     res = lsq_linear(xw / scale, y * w, bounds=(lower * scale, np.inf), method="bvls", tol=1e-12)
+    if res.status < 1:
+        raise ValueError(f"bounded least squares did not converge: {res.message}")
     p = res.x / scale
     active = np.isclose(p, lower, rtol=0, atol=1e-12 * np.maximum(1.0, np.abs(lower))) | (p <= lower)
     p = np.maximum(p, lower)

@@ -38,6 +38,10 @@ V_MAX_FACTOR = 2.0
 DENSE = 20.0
 
 
+class InstrumentError(ValueError):
+    """The model cannot simulate a step for instruments (e.g. an estimate with a non-positive mass)."""
+
+
 def _rows(st: StepSignals, q: np.ndarray, sd: np.ndarray, sdd: np.ndarray, sheet: DataSheet) -> np.ndarray:
     """H_kᵀΘ(q, H_k ṡ, Ḣ_k ṡ + H_k s̈) of the mode's coordinates, (N, n_k, 11)."""
     qd, qdd = dynamics.generalized_state(st.k, q, sd, sdd, sheet.geometry)
@@ -50,7 +54,7 @@ def simulate_step(st: StepSignals, coordinate: str, tau: np.ndarray, p: np.ndarr
 
     Args: st: the step's measured generalized signals (configuration, cycle time); p: (11,) parameters;
         v_max: the table's velocity range ±v_max (the simulation is held within it).
-    Raises: ValueError when the model's mass M of the coordinate is not positive."""
+    Raises: InstrumentError when the model's mass M of the coordinate is not positive."""
     j = MODE_COORDINATES[st.k].index(coordinate)
     nk = kinematics.N_GENERALIZED[st.k]
     q = np.median(st.q, axis=0)[None, :]
@@ -59,7 +63,7 @@ def simulate_step(st: StepSignals, coordinate: str, tau: np.ndarray, p: np.ndarr
     unit[0, j] = 1.0
     mass = float(_rows(st, q, np.zeros((1, nk)), unit, sheet)[0, j] @ p)
     if not mass > 0:
-        raise ValueError(f"{st.step}/{coordinate}: the model's mass {mass:.4g} is not positive; "
+        raise InstrumentError(f"{st.step}/{coordinate}: the model's mass {mass:.4g} is not positive; "
                          f"no simulation for instruments")
     eps = dynamics.EPS
     vmax = max(v_max, DENSE * eps)
@@ -85,7 +89,7 @@ def simulated_instruments(signals: Signals, sheet: DataSheet, p: np.ndarray) -> 
     :func:`.regressor_rows.identification_blocks` (same channels, rows and velocities).
 
     Args: signals: the (torque-corrected) recording; sheet: the data sheet; p: (11,) parameters (18).
-    Raises: RunDirectoryError (a step missing), ValueError (a non-positive model mass)."""
+    Raises: RunDirectoryError (a step missing), InstrumentError (a non-positive model mass)."""
     p = np.asarray(p, dtype=float)
     blocks = []
     for step in IDENTIFICATION_STEPS:

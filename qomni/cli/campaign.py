@@ -139,9 +139,9 @@ def single_axis_command(
 def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
     from qomni.ident.identify import identify_run, validate_run
 
-    result = guarded(lambda: _timed(lambda: identify_run(run_dir, torque_lag=torque_lag, estimator=estimator)))
+    result = guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=torque_lag, estimator=estimator)))
     _print_parameters(result)
-    validation = guarded(lambda: _timed(lambda: validate_run(run_dir)))
+    validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, result, validation)
 
@@ -160,6 +160,11 @@ def _print_parameters(result) -> None:
     table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"], "", "", "", "")
     console.print(table)
     console.print(f"cond(Θ̂₁ᵀΘ̂₁) = {result.condition_number:.2f}  (paper: 11.56)")
+    if result.estimator_info.get("converged") is False:
+        console.print(f"warning: the {result.estimator} iterations did not converge "
+                      f"({result.estimator_info.get('iterations')} iterations); the values are the last iterate")
+    if result.estimator_info.get("active_bounds"):
+        console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
     lag = result.torque_lag
     if lag:
         std = f" ± {1e3 * lag['std']:.3f}" if lag.get("std") is not None else ""
@@ -202,13 +207,15 @@ def _plots(run_dir: Path, result, validation) -> None:
 
 
 
-def _timed(fn):
-    """``fn()``, or a plain error for a torque lag that cannot be estimated or applied."""
+def _identification_errors(fn):
+    """``fn()``, or a plain error for a torque lag that cannot be estimated or applied or a model that
+    cannot simulate the instruments of the iv estimator."""
+    from qomni.ident.instruments import InstrumentError
     from qomni.ident.torque_timing import TorqueTimingError
 
     try:
         return fn()
-    except TorqueTimingError as exc:
+    except (TorqueTimingError, InstrumentError) as exc:
         fail(str(exc))
 
 
@@ -237,7 +244,7 @@ def identify(
     from qomni.ident.identify import identify_run
 
     lag = _identify_options(estimator, torque_lag)
-    _print_parameters(guarded(lambda: _timed(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
+    _print_parameters(guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
     console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
 
@@ -247,7 +254,7 @@ def validate(run_dir: Path = typer.Argument(..., help="Run directory with identi
     from qomni.ident.rundir import load_identification
     from qomni.ident.identify import validate_run
 
-    validation = guarded(lambda: _timed(lambda: validate_run(run_dir)))
+    validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, guarded(lambda: load_identification(run_dir)), validation)
     console.print(f"written {run_dir / VALIDATION_JSON}")
