@@ -22,7 +22,8 @@ from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SI
                      b_w_source, load_identification, load_run, read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
-from .torque_timing import TorqueLag, check_lag, estimate_torque_lag, shift_torque
+from .least_squares import IdentifiabilityError
+from .torque_timing import TorqueLag, TorqueTimingError, check_lag, estimate_torque_lag, model_lag, shift_torque
 from .validation import ValidationResult, compare_generalized_torques, stick_slip_comparison
 
 
@@ -30,15 +31,17 @@ from .validation import ValidationResult, compare_generalized_torques, stick_sli
 IV_ITERATIONS = 2
 
 
-def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
+def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
                  estimator: str = "wls") -> IdentificationResult:
     """Identify from a run directory and write ``identification.json`` into it.
 
     Args:
         run_dir: a campaign's run directory.
-        torque_lag: ``"auto"`` estimates the lag of the reported torque behind the applied one from the
-            campaign (:mod:`.torque_timing`); a number (s) is a known lag. The torque is corrected by it
-            before the fit, the single-axis B_w too when the run has a single-axis recording.
+        torque_lag: the lag of the reported torque behind the applied one the fit corrects for:
+            ``"auto"`` the campaign's own estimate (:mod:`.torque_timing`), a number (s) a known lag
+            (default 0: 0x6077 as docs/conventions.md defines it). The torque is corrected before the
+            fit, the single-axis B_w too when the run has a single-axis recording. The estimate is
+            made and reported in every case.
         estimator: one of :data:`.estimators.ESTIMATORS`.
     Raises:
         RunDirectoryError, RecordingError, DataSheetError: the run directory; IdentifiabilityError: the
@@ -54,7 +57,13 @@ def identify_run(run_dir: str | Path, *, torque_lag: str | float = "auto",
     if torque_lag == "auto":
         timing = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
     else:
-        timing = TorqueLag(check_lag(torque_lag), "configured", ts)
+        value = check_lag(torque_lag)
+        try:
+            found = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+        except (TorqueTimingError, IdentifiabilityError):
+            found = TorqueLag(math.nan, "estimated", ts)   # reported as null: not estimable here
+        timing = TorqueLag(value, "configured", ts, estimate=None if math.isnan(found.value) else found.value,
+                           estimate_std=found.std)
     if (run_dir / SINGLE_AXIS_DIR / SIGNALS).exists() and single_axis_lag(run_dir) != timing.value:
         identify_single_axis(run_dir, sheet, torque_lag=timing.value)
         B_w, source = b_w_source(run_dir, sheet)
@@ -88,19 +97,11 @@ def single_axis_lag(run_dir: Path) -> float:
     return float(read_json(path).get("torque_lag", {}).get("value", 0.0))
 
 
-def identified_torque_lag(run_dir: Path) -> float:
-    """The torque lag (s) stored in the run's ``identification.json`` (0 when it has none).
-
-    Raises: RunDirectoryError (no identification.json), TorqueTimingError (an invalid lag)."""
-    data = read_json(run_dir / IDENTIFICATION_JSON)
-    return check_lag(data.get("torque_lag", {}).get("value", 0.0))
-
-
 def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     """:func:`load_run` with the torque corrected by the lag of ``identification.json``."""
     run_dir = Path(run_dir)
     signals, sheet, meta = load_run(run_dir)
-    return shift_torque(signals, identified_torque_lag(run_dir)), sheet, meta
+    return shift_torque(signals, model_lag(load_identification(run_dir))), sheet, meta
 
 
 def validate_run(run_dir: str | Path) -> ValidationResult:

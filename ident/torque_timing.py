@@ -39,18 +39,23 @@ class TorqueTimingError(ValueError):
 
 @dataclass(frozen=True)
 class TorqueLag:
-    """Lag of the reported torque behind the applied one (s); ``source`` is ``"estimated"`` or
-    ``"configured"``; ``std`` (s) and ``iterations`` only for an estimate."""
+    """Lag of the reported torque behind the applied one (s) that the fit corrects for; ``source`` is
+    ``"estimated"`` or ``"configured"``; ``std`` (s) and ``iterations`` only for an estimate.
+    ``estimate``, ``estimate_std`` (s): the campaign's own estimate, also beside a configured lag
+    (None where it could not be made)."""
 
     value: float
     source: str
     cycle_time: float
     std: float | None = None
     iterations: int = 0
+    estimate: float | None = None
+    estimate_std: float | None = None
 
     def to_json_dict(self) -> dict:
         return {"value": self.value, "unit": "s", "cycles": self.value / self.cycle_time,
                 "std": self.std, "source": self.source, "iterations": self.iterations,
+                "estimate": self.estimate, "estimate_std": self.estimate_std,
                 "definition": "reported torque actual (0x6077) at t is the torque applied at t - lag; "
                               "applied u(t) = reported r(t + lag) (docs/conventions.md, Torque timing)"}
 
@@ -81,6 +86,14 @@ def check_lag(lag: float) -> float:
     if not np.isfinite(lag) or abs(lag) > MAX_LAG:
         raise TorqueTimingError(f"torque lag {lag} s: must be finite and within ±{MAX_LAG} s")
     return lag
+
+
+def model_lag(result) -> float:
+    """The torque lag (s) an :class:`.result.IdentificationResult` was identified with (0 when none):
+    data compared with that model must be shifted by it (:func:`shift_torque`) first.
+
+    Raises: TorqueTimingError for an invalid stored lag."""
+    return check_lag(result.torque_lag.get("value", 0.0)) if result.torque_lag else 0.0
 
 
 def estimate_torque_lag(
@@ -123,6 +136,7 @@ def estimate_torque_lag(
         if abs(step) < tol:
             cov = newey_west_cov(x * wrow[:, None], fit.residual * wrow, ch[keep], np.nonzero(keep)[0],
                                  correlation_lag)
-            return TorqueLag(lag, "estimated", cycle_time, float(np.sqrt(cov[-1, -1])), it)
+            std = float(np.sqrt(cov[-1, -1]))
+            return TorqueLag(lag, "estimated", cycle_time, std, it, lag, std)
     raise TorqueTimingError(f"torque lag estimate did not converge in {max_iter} iterations "
                             f"(last step {step:.3g} s)")

@@ -57,13 +57,13 @@ def test_a_report_lag_is_estimated_within_0_2_ms(recorded, delta):
 def test_the_fit_is_corrected_for_the_lag_and_reports_it(recorded, tmp_path):
     run_dir = tmp_path / "run"
     shutil.copytree(recorded[0], run_dir)
-    base = identify_run(run_dir)
+    base = identify_run(run_dir, torque_lag="auto")
     base_lag = json.loads((run_dir / "identification.json").read_text())["torque_lag"]["value"]
     signals, _, _ = load_run(run_dir)
     late = shift_torque(signals, -0.002)                       # the drives report one cycle late
     _write_torque(run_dir, late.motor_torque)
     uncorrected = identify_run(run_dir, torque_lag=0.0)
-    corrected = identify_run(run_dir)
+    corrected = identify_run(run_dir, torque_lag="auto")
     data = json.loads((run_dir / "identification.json").read_text())["torque_lag"]
     assert data["source"] == "estimated" and data["unit"] == "s"
     assert abs(data["value"] - base_lag - 0.002) < 2e-4
@@ -113,7 +113,7 @@ def test_cli_identify_takes_estimator_and_torque_lag(recorded, tmp_path):
     data = json.loads((run_dir / "identification.json").read_text())
     assert data["estimator"]["name"] == "consistent"
     assert data["torque_lag"] == pytest.approx({**data["torque_lag"], "value": 0.002, "cycles": 1.0})
-    assert data["torque_lag"]["source"] == "configured"
+    assert data["torque_lag"]["source"] == "configured" and abs(data["torque_lag"]["estimate"]) < 2e-3
     assert data["identifiability"]["d_vl"]["determined_by"] == ["steer_left"]
     assert data["identifiability"]["m_ch"]["determined_by"] == ["straight"]
     assert all(data["parameters"][n]["std_bootstrap"] > 0 for n in CHASSIS)

@@ -20,8 +20,9 @@ from .loaders import (check_bus_spec, load_datasheet, load_description, load_eff
 ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
                   "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
                   "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
-TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque: 'auto' estimates it "
-                   "from the campaign, a number is a known lag in seconds (docs/conventions.md).")
+TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque that the fit corrects "
+                   "for: 'auto' the campaign's own estimate, a number a known lag in seconds; 0 (default): "
+                   "0x6077 as docs/conventions.md defines it. The estimate is reported in every case.")
 
 
 @app.command()
@@ -47,7 +48,7 @@ def campaign(
                    "plus the effects it lists. Default: the prototype as described."),
     force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
     estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
-    torque_lag: str = typer.Option("auto", "--torque-lag", help=TORQUE_LAG_HELP),
+    torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
@@ -167,9 +168,12 @@ def _print_parameters(result) -> None:
         console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
     lag = result.torque_lag
     if lag:
-        std = f" ± {1e3 * lag['std']:.3f}" if lag.get("std") is not None else ""
-        console.print(f"torque lag (0x6077 behind the applied torque, {lag['source']}): "
-                      f"{1e3 * lag['value']:.3f}{std} ms = {lag['cycles']:.2f} cycles")
+        console.print(f"torque lag (0x6077 behind the applied torque) corrected for: {1e3 * lag['value']:.3f} ms "
+                      f"= {lag['cycles']:.2f} cycles ({lag['source']})")
+        if lag.get("estimate") is not None:
+            console.print(f"torque lag estimated from the campaign: {1e3 * lag['estimate']:.3f} ± "
+                          f"{1e3 * lag['estimate_std']:.3f} ms" +
+                          ("" if lag["source"] == "estimated" else " (--torque-lag auto corrects for it)"))
 
 
 def _print_validation(validation) -> None:
@@ -238,7 +242,7 @@ def _identify_options(estimator: str, torque_lag: str) -> str | float:
 def identify(
     run_dir: Path = typer.Argument(..., help="Run directory of a campaign."),
     estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
-    torque_lag: str = typer.Option("auto", "--torque-lag", help=TORQUE_LAG_HELP),
+    torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
 ):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
     from qomni.ident.identify import identify_run
