@@ -151,7 +151,8 @@ class IdentificationResult:
 
         Raises:
             KeyError: a parameter is missing. ValueError: a value or standard deviation is not finite, a
-                standard deviation is negative or B_w is not positive (the key named).
+                standard deviation is negative, B_w is not positive or torque_lag.value is not finite (the key
+                named).
         """
         params = d["parameters"]
         for name in (*P1_NAMES, "B_w"):
@@ -159,6 +160,9 @@ class IdentificationResult:
             std = float(params[name].get("std", 0.0) or 0.0) if name == "B_w" else float(params[name]["std"])
             if not (math.isfinite(value) and math.isfinite(std) and std >= 0):
                 raise ValueError(f"parameters.{name}: value {value} and std {std} must be finite, std >= 0")
+        lag = d.get("torque_lag", {}).get("value", 0.0)
+        if not math.isfinite(float(lag)):
+            raise ValueError(f"torque_lag.value must be a finite lag in s, got {lag}")
         if not float(params["B_w"]["value"]) > 0:
             raise ValueError(f"parameters.B_w.value must be > 0 kg m^2, got {params['B_w']['value']}")
         cov = d.get("covariance")

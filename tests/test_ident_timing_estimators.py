@@ -124,7 +124,7 @@ def test_cli_identify_takes_estimator_and_torque_lag(recorded, tmp_path):
     data["torque_lag"]["value"] = float("nan")                  # an edited identification.json
     (run_dir / "identification.json").write_text(json.dumps(data))
     bad = runner.invoke(app, ["validate", str(run_dir)])
-    assert bad.exit_code == 2 and "torque lag nan" in bad.output
+    assert bad.exit_code == 2 and "torque_lag.value" in bad.output
 
 
 def test_iv_with_instruments_from_the_simulated_model_agrees_with_wls(recorded, tmp_path):
