@@ -29,6 +29,7 @@ from qomni.conventions import P1_NAMES
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import load_identification, load_run
+from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
 from . import fit as fitting
@@ -184,6 +185,12 @@ def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
 
 
+def _load_run(run_dir, model: IdentificationResult):
+    """A run's signals with the torque timing of ``model`` (its torque lag applied, as in its fit)."""
+    signals, sheet, meta = load_run(run_dir)
+    return shift_torque(signals, model_lag(model)), sheet, meta
+
+
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
              *, reference_dir: str | Path | None = None, simulate: bool = True,
              model_source: str = "") -> Diagnosis:
@@ -201,20 +208,20 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
     """
-    signals, sheet, meta = load_run(data_dir)
+    signals, sheet, meta = _load_run(data_dir, model)
     data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps()}
     lag = correlation_lag(sheet.drive.cycle_time)
     chans = channels(signals, sheet, model)
     hold = None
     if holdout_dir is not None:
-        h_signals, h_sheet, _ = load_run(holdout_dir)
+        h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     fp, hp = make_problem(chans, lag, hold)
     cache: dict = {}
     levels: dict = {}
     ref_problem = None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
-        r_signals, r_sheet, _ = load_run(reference_dir)
+        r_signals, r_sheet, _ = _load_run(reference_dir, model)
         ref = channels(r_signals, r_sheet, model)
         ref_problem, _ = make_problem(ref, lag, ref)
         levels = fitting.reference_levels(ref_problem, model, LIBRARY, lag, cache)

@@ -37,9 +37,17 @@ import numpy as np
 
 from qomni.conventions import P1_NAMES, P2_NAMES, PARAMETER_NAMES
 
-from .least_squares import RANK_TOL, Fit, IdentifiabilityError, lstsq, newey_west_cov, per_channel, rms
+from .bootstrap import N_REPLICATES, WINDOW_CORRELATION_LENGTHS, bootstrap_std
+from .estimators import solve
+from .parameter_report import parameter_report
+from .least_squares import RANK_TOL, Fit, IdentifiabilityError, channel_weights, lstsq, per_channel, rms
 from .regressor import DEFAULT_VELOCITY_THRESHOLD, RegressorBlock, row_mask, stack_blocks
 from .result import IdentificationResult
+
+
+#: Lower bounds of p₁ for the ``consistent`` estimator: inertias, masses, viscous and Coulomb coefficients
+#: are all non-negative (a negative one would make the model's energy or dissipation negative).
+PHYSICAL_LOWER_BOUNDS = np.zeros(len(P1_NAMES))
 
 
 def estimate(
@@ -50,6 +58,8 @@ def estimate(
     channel_weighting: bool = True,
     rank_tol: float = RANK_TOL,
     correlation_lag: int = 0,
+    estimator: str = "wls",
+    instruments: Iterable[RegressorBlock] | None = None,
 ) -> IdentificationResult:
     """Estimate p₁ from stacked rows of (22) with B_w fixed, (23)–(25).
 
@@ -71,6 +81,12 @@ def estimate(
         ω_g stay correlated for ≈ 4/(ω_g T_s) rows. With a lag L > 0 the reported covariance is the
         Newey–West (Bartlett kernel, lags ≤ L) sandwich estimate over contiguous rows of each channel
         instead of σ²(ΘᵀΘ)⁻¹, which would understate σ_p by about √(correlation length).
+    estimator : str
+        ``"wls"`` (default), ``"irls"``, ``"iv"`` or ``"consistent"`` (:mod:`.estimators`); the first LS
+        pass (``values_ls``) and the channel weights are the same for all.
+    instruments : iterable of RegressorBlock, optional
+        For ``"iv"``: rows aligned one to one with ``blocks`` (same channels, same lengths), evaluated on
+        a model-simulated trajectory (:mod:`.instruments`).
 
     Returns
     -------
@@ -109,27 +125,29 @@ def estimate(
     values_ls = dict(zip(P1_NAMES, fit.p.tolist()))
     std_ls = dict(zip(P1_NAMES, np.sqrt(np.diag(fit.cov)).tolist()))
     used = [c for c in labels if rows_used[c] > 0]
-    sigma = per_channel(fit.residual, ch, used, rms)
-
-    final, method, cond_w = fit, "ls", None
     if channel_weighting:
-        s_max = max(sigma.values())
-        if s_max > 0:
-            # Floor tiny σ_c (noise-free channels) so weights stay finite.
-            floor = 1e-6 * s_max
-            wrow = np.empty_like(y)
-            for c in used:
-                wrow[ch == c] = 1.0 / max(sigma[c], floor)
-            wfit = lstsq(theta1 * wrow[:, None], y * wrow, P1_NAMES, rank_tol)
-            final = Fit(p=wfit.p, cov=wfit.cov, cond=fit.cond, residual=y - theta1 @ wfit.p)
-            cond_w = wfit.cond
-            method = "channel_weighted_ls"
-        # else: all residuals are zero (noise-free data); weighting cannot change the solution.
-    if correlation_lag > 0:
-        wrow_final = wrow if method == "channel_weighted_ls" else np.ones_like(y)
-        cov = newey_west_cov(theta1 * wrow_final[:, None], final.residual * wrow_final, ch,
-                              row_index, correlation_lag)
-        final = Fit(p=final.p, cov=cov, cond=final.cond, residual=final.residual)
+        wrow, sigma = channel_weights(fit.residual, ch)
+        method = "channel_weighted_ls"
+    else:
+        wrow, sigma = np.ones_like(y), per_channel(fit.residual, ch, used, rms)
+        method = "ls"
+    z = None
+    if instruments is not None:
+        z_all = stack_blocks(instruments)[0]
+        if z_all.shape[0] != keep.shape[0]:
+            raise ValueError(f"instruments have {z_all.shape[0]} rows, the regressor {keep.shape[0]}")
+        z = z_all[keep][:, i1]
+    sol = solve(estimator, theta1, y, ch, row_index, wrow, correlation_lag, P1_NAMES, instruments=z,
+                lower=PHYSICAL_LOWER_BOUNDS, rank_tol=rank_tol)
+    cond_w = lstsq(theta1 * wrow[:, None], y * wrow, P1_NAMES, rank_tol).cond if channel_weighting else None
+    final = Fit(p=sol.p, cov=sol.cov, cond=fit.cond, residual=sol.residual)
+    wf = sol.weights
+    report = parameter_report(theta1 * wf[:, None], ch, sol.p, sol.cov, P1_NAMES, rank_tol)
+    window = WINDOW_CORRELATION_LENGTHS * max(correlation_lag, 1)
+    std_boot = bootstrap_std(theta1 * wf[:, None], y * wf, ch, window,
+                             instruments=None if z is None else z * wf[:, None])
+    if estimator != "wls":
+        method = f"{method}+{estimator}"
 
     return IdentificationResult(
         values=dict(zip(P1_NAMES, final.p.tolist())),
@@ -146,6 +164,12 @@ def estimate(
         covariance=final.cov,
         values_ls=values_ls,
         std_ls=std_ls,
+        estimator=estimator,
+        estimator_info=sol.info,
+        identifiability=report,
+        std_bootstrap=dict(zip(P1_NAMES, std_boot.tolist())),
+        bootstrap={"method": "moving-block bootstrap over campaign windows, stratified by channel",
+                   "window_rows": window, "replicates": N_REPLICATES, "seed": 0},
     )
 
 

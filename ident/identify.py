@@ -6,7 +6,10 @@ for fitting and validates the result (Fig. 6). Both write their result into the 
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
+
+from qomni.datasheet import DataSheet
 
 from . import filtering
 from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
@@ -14,20 +17,67 @@ from .result import IdentificationResult
 from .estimation import estimate
 from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
                              identification_blocks, validation_blocks)
-from .rundir import (IDENTIFICATION_JSON, METADATA, VALIDATION_JSON, b_w_source, load_identification, load_run,
-                     require_complete, write_json)
-from .validation import ValidationResult, compare_generalized_torques
+from .recording import Signals
+from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
+                     b_w_source, load_identification, load_run, read_json, require_complete, write_json)
+from .instruments import simulated_instruments
+from .single_axis import identify_single_axis
+from .least_squares import IdentifiabilityError
+from .torque_timing import TorqueLag, TorqueTimingError, check_lag, estimate_torque_lag, model_lag, shift_torque
+from .validation import ValidationResult, compare_generalized_torques, stick_slip_comparison
 
 
-def identify_run(run_dir: str | Path) -> IdentificationResult:
-    """Identify from a run directory and write ``identification.json`` into it."""
+#: Instrument refinements of the ``iv`` estimator: WLS → instruments → IV → instruments → IV.
+IV_ITERATIONS = 2
+
+
+def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
+                 estimator: str = "wls") -> IdentificationResult:
+    """Identify from a run directory and write ``identification.json`` into it.
+
+    Args:
+        run_dir: a campaign's run directory.
+        torque_lag: the lag of the reported torque behind the applied one the fit corrects for:
+            ``"auto"`` the campaign's own estimate (:mod:`.torque_timing`), a number (s) a known lag
+            (default 0: 0x6077 as docs/conventions.md defines it). The torque is corrected before the
+            fit, the single-axis B_w too when the run has a single-axis recording. The estimate is
+            made and reported in every case.
+        estimator: one of :data:`.estimators.ESTIMATORS`.
+    Raises:
+        RunDirectoryError, RecordingError, DataSheetError: the run directory; IdentifiabilityError: the
+        campaign does not determine p₁; TorqueTimingError: the lag; ValueError: an unknown estimator.
+    """
     run_dir = Path(run_dir)
     signals, sheet, meta = load_run(run_dir)
     require_complete(meta, IDENTIFICATION_STEPS, str(run_dir / METADATA))
     B_w, source = b_w_source(run_dir, sheet)
-    lag = correlation_lag(sheet.drive.cycle_time)
-    result = estimate(identification_blocks(signals, sheet), B_w,
-                      velocity_threshold=VELOCITY_THRESHOLD, correlation_lag=lag)
+    ts = sheet.drive.cycle_time
+    lag = correlation_lag(ts)
+    blocks_of = lambda s: identification_blocks(s, sheet)  # noqa: E731
+    if torque_lag == "auto":
+        timing = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+    else:
+        value = check_lag(torque_lag)
+        try:
+            found = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+        except (TorqueTimingError, IdentifiabilityError):
+            found = TorqueLag(math.nan, "estimated", ts)   # reported as null: not estimable here
+        timing = TorqueLag(value, "configured", ts, estimate=None if math.isnan(found.value) else found.value,
+                           estimate_std=found.std)
+    if (run_dir / SINGLE_AXIS_DIR / SIGNALS).exists() and single_axis_lag(run_dir) != timing.value:
+        identify_single_axis(run_dir, sheet, torque_lag=timing.value)
+        B_w, source = b_w_source(run_dir, sheet)
+    corrected = shift_torque(signals, timing.value)
+    blocks = blocks_of(corrected)
+    fit = lambda name, z=None: estimate(blocks, B_w, velocity_threshold=VELOCITY_THRESHOLD,  # noqa: E731
+                                        correlation_lag=lag, estimator=name, instruments=z)
+    if estimator == "iv":
+        result = fit("wls")
+        for _ in range(IV_ITERATIONS):     # instruments from the model of the previous estimate
+            result = fit("iv", simulated_instruments(corrected, sheet, result.p))
+    else:
+        result = fit(estimator)
+    result.torque_lag = timing.to_json_dict()
     data = result.to_json_dict()
     data["parameters"]["B_w"]["source"] = source
     data["filter"] = {"omega_g": filtering.OMEGA_G, "unit": "rad/s", "zero_phase": True}
@@ -39,10 +89,25 @@ def identify_run(run_dir: str | Path) -> IdentificationResult:
     return result
 
 
+def single_axis_lag(run_dir: Path) -> float:
+    """The torque lag (s) the run's ``single_axis.json`` was identified with (0 when it says none)."""
+    path = run_dir / SINGLE_AXIS_JSON
+    if not path.exists():
+        return math.nan
+    return float(read_json(path).get("torque_lag", {}).get("value", 0.0))
+
+
+def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
+    """:func:`load_run` with the torque corrected by the lag of ``identification.json``."""
+    run_dir = Path(run_dir)
+    signals, sheet, meta = load_run(run_dir)
+    return shift_torque(signals, model_lag(load_identification(run_dir))), sheet, meta
+
+
 def validate_run(run_dir: str | Path) -> ValidationResult:
     """Validate ``identification.json`` on the lane change and write ``validation.json``."""
     run_dir = Path(run_dir)
-    signals, sheet, meta = load_run(run_dir)
+    signals, sheet, meta = load_corrected_run(run_dir)
     require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     result = load_identification(run_dir)
     blocks = validation_blocks(signals, sheet)
@@ -50,16 +115,17 @@ def validate_run(run_dir: str | Path) -> ValidationResult:
     data = validation.to_json_dict()
     data["step"] = VALIDATION_STEP
     # As the paper's Fig. 6, all rows count above. Rows in stiction carry static friction that no
-    # tanh(v/ε) model predicts; the same comparison over moving rows only separates that effect.
-    moving = {}
-    for block in blocks:
-        try:
-            one = compare_generalized_torques([block], result, velocity_threshold=VELOCITY_THRESHOLD)
-            moving.update({c: {"nrmse": v, "n_rows": one.channels[c].n_rows}
-                           for c, v in one.nrmse.items()})
-        except ValueError:  # no row of this channel moves faster than its stiction threshold
-            moving[str(block.channel[0])] = {"nrmse": None, "n_rows": 0}
+    # tanh(v/ε) model predicts: moving rows are compared with the model, sticking rows with the model
+    # made able to stick (a stick-slip switch), each on its own.
+    split = stick_slip_comparison(blocks, result, VELOCITY_THRESHOLD)
+    moving = {c: (v["moving"] if v["moving"]["n_rows"] else {"nrmse": None, "n_rows": 0})
+              for c, v in split.items()}
     data["moving_rows"] = {"velocity_threshold": VELOCITY_THRESHOLD, "channels": moving}
+    data["sticking_rows"] = {"model": "stick-slip switch: friction balances the torque within the static "
+                                      "friction band F_s (the Coulomb level)",
+                             "channels": {c: dict(v["sticking"], moving_share=v["moving_share"])
+                                          for c, v in split.items()}}
     validation.moving = moving
+    validation.sticking = data["sticking_rows"]["channels"]
     write_json(run_dir / VALIDATION_JSON, data)
     return validation

@@ -87,6 +87,32 @@ def lstsq(theta: np.ndarray, y: np.ndarray, names: Sequence[str], rank_tol: floa
     return Fit(p=p, cov=cov, cond=float((s[0] / s[-1]) ** 2), residual=r)
 
 
+def channel_weights(residual: np.ndarray, channel: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    """Row weights 1/σ_c, σ_c = RMS of ``residual`` over the rows of channel c (two-step feasible GLS).
+
+    σ_c below 1e-6 of the largest is floored there, so noise-free channels keep finite weights; all
+    residuals zero gives unit weights. Returns (weights (N,), {channel: σ_c})."""
+    labels = list(dict.fromkeys(channel.tolist()))
+    sigma = per_channel(residual, channel, labels, rms)
+    s_max = max(sigma.values())
+    w = np.ones_like(residual, dtype=float)
+    if s_max > 0:
+        for c in labels:
+            w[channel == c] = 1.0 / max(sigma[c], 1e-6 * s_max)
+    return w, sigma
+
+
+def channel_weighted_lstsq(theta: np.ndarray, y: np.ndarray, channel: np.ndarray, names: Sequence[str],
+                           rank_tol: float = RANK_TOL) -> tuple[Fit, np.ndarray]:
+    """Two-step channel-weighted least squares: :func:`lstsq`, rows weighted by 1/σ_c of its residuals
+    (:func:`channel_weights`), :func:`lstsq` again. Returns the weighted fit (its ``residual`` in the
+    units of ``y``, unweighted; ``cov`` from the weighted rows) and the row weights (N,)."""
+    first = lstsq(theta, y, names, rank_tol)
+    w, _ = channel_weights(first.residual, channel)
+    fit = lstsq(theta * w[:, None], y * w, names, rank_tol)
+    return Fit(p=fit.p, cov=fit.cov, cond=fit.cond, residual=y - theta @ fit.p), w
+
+
 def per_channel(values: np.ndarray, channel: np.ndarray, labels: Sequence[str], fn) -> dict[str, float]:
     return {c: float(fn(values[channel == c])) for c in labels}
 

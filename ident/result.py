@@ -40,6 +40,15 @@ class IdentificationResult:
         Covariance of p₁ (order ``P1_NAMES``) of the reported fit.
     values_ls, std_ls : dict[str, float]
         First-pass (paper's unweighted-row) estimates and stds.
+    estimator : str
+        The estimator of ``values`` (:data:`.estimators.ESTIMATORS`); ``estimator_info`` its details
+        (robust weights, active bounds, instruments).
+    identifiability : dict
+        Per-parameter report (:mod:`.parameter_report`): determining step, relative σ, correlations.
+    std_bootstrap, bootstrap : dict
+        σ_p from a moving-block bootstrap over campaign windows (:mod:`.bootstrap`), and its settings.
+    torque_lag : dict
+        The lag of the reported torque the rows were corrected for (:mod:`.torque_timing`), if any.
     """
 
     values: dict[str, float]
@@ -56,6 +65,12 @@ class IdentificationResult:
     covariance: np.ndarray | None = None
     values_ls: dict[str, float] = field(default_factory=dict)
     std_ls: dict[str, float] = field(default_factory=dict)
+    estimator: str = "wls"
+    estimator_info: dict = field(default_factory=dict)
+    identifiability: dict = field(default_factory=dict)
+    std_bootstrap: dict[str, float] = field(default_factory=dict)
+    bootstrap: dict = field(default_factory=dict)
+    torque_lag: dict = field(default_factory=dict)
 
     @property
     def p1(self) -> np.ndarray:
@@ -76,18 +91,35 @@ class IdentificationResult:
         """{name: value} for all 11 parameters."""
         return dict(zip(PARAMETER_NAMES, self.p.tolist()))
 
+    def report_row(self, name: str) -> tuple[str, str, str, str]:
+        """(relative σ, bootstrap σ, determining steps, strongest correlation) of p₁ entry ``name`` as text
+        ("-" where the result has no report)."""
+        rep = self.identifiability.get(name, {})
+        rel = rep.get("relative_std")
+        strongest = rep.get("strongest_correlation")
+        boot = self.std_bootstrap.get(name)
+        return (f"{100 * rel:.2f} %" if rel is not None else "-",
+                f"{boot:.4f}" if boot is not None else "-",
+                ", ".join(rep.get("determined_by", [])) or "-",
+                f"{strongest['rho']:+.2f} {strongest['with']}" if strongest else "-")
+
     def table(self) -> str:
-        """Plain-text table like the paper's Table 2."""
-        lines = [f"{'Name':<6} {'Value':>12} {'Std':>10}  Unit"]
+        """Plain-text table like the paper's Table 2, with the identifiability report."""
+        lines = [f"{'Name':<6} {'Value':>12} {'Std':>10}  {'Unit':<10} {'Rel. std':>9} {'Std boot':>9}  "
+                 f"{'Determined by':<32} Strongest corr."]
         for n in P1_NAMES:
-            lines.append(f"{n:<6} {self.values[n]:>12.4f} {self.std[n]:>10.4f}  {PARAMETER_UNITS[n]}")
+            rel, boot, by, rho = self.report_row(n)
+            lines.append(f"{n:<6} {self.values[n]:>12.4f} {self.std[n]:>10.4f}  {PARAMETER_UNITS[n]:<10} "
+                         f"{rel:>9} {boot:>9}  {by:<32} {rho}")
         lines.append(f"{'B_w':<6} {self.B_w:>12.4f} {'(fixed)':>10}  {PARAMETER_UNITS['B_w']}")
         lines.append(f"cond(Theta_1w^T Theta_1w) = {self.condition_number:.2f}")
         return "\n".join(lines)
 
     def to_json_dict(self) -> dict:
         params: dict = {
-            n: {"value": self.values[n], "std": self.std[n], "unit": PARAMETER_UNITS[n]} for n in P1_NAMES
+            n: {"value": self.values[n], "std": self.std[n], "unit": PARAMETER_UNITS[n],
+                **({"std_bootstrap": self.std_bootstrap[n]} if n in self.std_bootstrap else {})}
+            for n in P1_NAMES
         }
         params["B_w"] = {"value": self.B_w, "unit": PARAMETER_UNITS["B_w"], "fixed": True}
         d = {
@@ -96,6 +128,10 @@ class IdentificationResult:
             "condition_number_definition": "cond(Theta_1w^T Theta_1w), column-norm weighted (25)",
             "condition_number_channel_weighted": self.condition_number_channel_weighted,
             "method": self.method,
+            "estimator": {"name": self.estimator, **self.estimator_info},
+            "bootstrap": dict(self.bootstrap),
+            "identifiability": self.identifiability,
+            **({"torque_lag": dict(self.torque_lag)} if self.torque_lag else {}),
             "velocity_threshold": self.velocity_threshold,
             "rows_used": dict(self.rows_used),
             "rows_total": dict(self.rows_total),
@@ -115,7 +151,8 @@ class IdentificationResult:
 
         Raises:
             KeyError: a parameter is missing. ValueError: a value or standard deviation is not finite, a
-                standard deviation is negative or B_w is not positive (the key named).
+                standard deviation is negative, B_w is not positive or torque_lag.value is not finite (the key
+                named).
         """
         params = d["parameters"]
         for name in (*P1_NAMES, "B_w"):
@@ -123,6 +160,9 @@ class IdentificationResult:
             std = float(params[name].get("std", 0.0) or 0.0) if name == "B_w" else float(params[name]["std"])
             if not (math.isfinite(value) and math.isfinite(std) and std >= 0):
                 raise ValueError(f"parameters.{name}: value {value} and std {std} must be finite, std >= 0")
+        lag = d.get("torque_lag", {}).get("value", 0.0)
+        if not math.isfinite(float(lag)):
+            raise ValueError(f"torque_lag.value must be a finite lag in s, got {lag}")
         if not float(params["B_w"]["value"]) > 0:
             raise ValueError(f"parameters.B_w.value must be > 0 kg m^2, got {params['B_w']['value']}")
         cov = d.get("covariance")
@@ -146,5 +186,12 @@ class IdentificationResult:
             covariance=cov,
             values_ls={k: float(v["value"]) for k, v in first.items()},
             std_ls={k: float(v["std"]) for k, v in first.items()},
+            estimator=str(d.get("estimator", {}).get("name", "wls")),
+            estimator_info={k: v for k, v in d.get("estimator", {}).items() if k != "name"},
+            identifiability=dict(d.get("identifiability", {})),
+            std_bootstrap={n: float(params[n]["std_bootstrap"]) for n in P1_NAMES
+                           if "std_bootstrap" in params[n]},
+            bootstrap=dict(d.get("bootstrap", {})),
+            torque_lag=dict(d.get("torque_lag", {})),
         )
 

@@ -29,6 +29,7 @@ from .recording import SignalWriter, read_signals
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
 from .regressor_rows import applied_torque_at_samples, correlation_lag
 from .rundir import METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, write_json
+from .torque_timing import shift_torque
 
 STEP = "single_axis"
 
@@ -90,16 +91,20 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
     return out
 
 
-def identify_single_axis(run_dir: str | Path, sheet: DataSheet) -> SingleAxisResult:
-    """Fit B_w, d_vw, d_cw per wheel from ``run_dir/single_axis`` and write ``single_axis.json``."""
+def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: float = 0.0) -> SingleAxisResult:
+    """Fit B_w, d_vw, d_cw per wheel from ``run_dir/single_axis`` and write ``single_axis.json``.
+
+    ``torque_lag`` (s): the drives' torque-report lag (:mod:`.torque_timing`), corrected before the fit."""
     run_dir = Path(run_dir)
-    sig = read_signals(run_dir / SINGLE_AXIS_DIR / SIGNALS)
+    sig = shift_torque(read_signals(run_dir / SINGLE_AXIS_DIR / SIGNALS), torque_lag)
     d = sheet.drive
     _, beta_dot, beta_ddot = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, d.cycle_time)
     torque = filtering.zero_phase_lowpass(applied_torque_at_samples(sig.motor_torque), d.cycle_time)
     result = estimate_single_axis(beta_dot, beta_ddot, d.i_G * torque, velocity_threshold=0.5,
                                   correlation_lag=correlation_lag(d.cycle_time))
-    write_json(run_dir / SINGLE_AXIS_JSON, result.to_json_dict())
+    data = result.to_json_dict()
+    data["torque_lag"] = {"value": float(torque_lag), "unit": "s"}
+    write_json(run_dir / SINGLE_AXIS_JSON, data)
     return result
 
 

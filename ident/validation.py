@@ -31,6 +31,7 @@ from .regressor import RegressorBlock, row_mask, stack_blocks
 
 __all__ = [
     "NRMSE_DEFINITION",
+    "stick_slip_comparison",
     "ChannelComparison",
     "ValidationResult",
     "generalized_torques",
@@ -84,13 +85,16 @@ class ValidationResult:
     """Per-channel comparison; ``channels`` maps label → :class:`ChannelComparison`.
 
     ``moving`` optionally holds, per channel, the same comparison over moving rows only
-    (``{"nrmse": float | None, "n_rows": int}``), which separates stiction from model error.
+    (``{"nrmse": float | None, "n_rows": int}``), which separates stiction from model error;
+    ``sticking`` the comparison over the other rows with a model that can stick
+    (:func:`stick_slip_comparison`).
     """
 
     channels: dict[str, ChannelComparison]
     velocity_threshold: float | dict | None = None
     parameters: dict[str, float] = field(default_factory=dict)
     moving: dict[str, dict] = field(default_factory=dict)
+    sticking: dict[str, dict] = field(default_factory=dict)
 
     @property
     def nrmse(self) -> dict[str, float]:
@@ -220,3 +224,59 @@ def compare_generalized_torques(
     if velocity_threshold is not None:
         thr = dict(velocity_threshold) if isinstance(velocity_threshold, Mapping) else float(velocity_threshold)
     return ValidationResult(out, thr, dict(zip(PARAMETER_NAMES, p.tolist())))
+
+
+#: Parameters whose columns are the Coulomb (tanh) friction of (16).
+COULOMB_PARAMETERS = ("d_cl", "d_cr", "d_cw")
+
+
+def _nrmse(model: np.ndarray, measured: np.ndarray) -> float | None:
+    if not measured.size:
+        return None
+    return ChannelComparison("", model, measured, measured).nrmse
+
+
+def stick_slip_comparison(blocks: Iterable[RegressorBlock], parameters, velocity_threshold,
+                          *, B_w: float | None = None) -> dict[str, dict]:
+    """NRMSE per channel on moving and on sticking rows, the sticking rows predicted by a model that
+    can stick.
+
+    Rows with |generalized velocity| ≥ the channel's threshold move: the model is Θ̂₁p₁ with its
+    tanh(v/ε) Coulomb friction. On the other rows the coordinate sticks: a stick–slip friction switch
+    (Karnopp 1985) holds it while the torque it must balance stays within the static friction band, so
+    the model's friction is whatever balances the rest of the equation within ±F_s and
+
+        model = clip(measured, rest − F_s, rest + F_s),   rest = Θ̂₁p₁ without its Coulomb columns,
+
+    F_s = Σ_j d_c,j · max_rows |θ_j| over the channel's Coulomb columns (the Coulomb level at
+    saturated tanh; the paper's model has no separate static friction).
+
+    Args: blocks: validation rows; parameters: as :func:`compare_generalized_torques`;
+        velocity_threshold: float or mapping (:func:`.regressor.row_mask`).
+    Returns: ``{channel: {"moving": {"nrmse", "n_rows"}, "sticking": {"nrmse", "n_rows",
+        "static_friction"}, "moving_share": float}}`` (nrmse None where a class has no rows).
+    Raises: ValueError as :func:`compare_generalized_torques`.
+    """
+    p = _parameter_vector(parameters, B_w)
+    theta, tau, vel, ch = stack_blocks(blocks)
+    moving = row_mask(vel, ch, velocity_threshold)
+    i1 = [PARAMETER_NAMES.index(n) for n in P1_NAMES]
+    i2 = [PARAMETER_NAMES.index(n) for n in P2_NAMES]
+    ic = [PARAMETER_NAMES.index(n) for n in COULOMB_PARAMETERS]
+    model = theta[:, i1] @ p[i1]
+    measured = tau - theta[:, i2] @ p[i2]
+    coulomb = theta[:, ic] * p[ic]
+    out = {}
+    for c in dict.fromkeys(ch.tolist()):
+        m = ch == c
+        f_s = float(np.sum(np.max(np.abs(theta[m][:, ic]), axis=0) * np.abs(p[ic])))
+        rest = model[m] - coulomb[m].sum(axis=1)
+        stuck = np.clip(measured[m], rest - f_s, rest + f_s)
+        mv = moving[m]
+        out[c] = {
+            "moving": {"nrmse": _nrmse(model[m][mv], measured[m][mv]), "n_rows": int(mv.sum())},
+            "sticking": {"nrmse": _nrmse(stuck[~mv], measured[m][~mv]), "n_rows": int((~mv).sum()),
+                         "static_friction": f_s},
+            "moving_share": float(mv.mean()),
+        }
+    return out

@@ -17,6 +17,12 @@ from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICA
 from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
                       vehicle_link)
 
+ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
+                  "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
+                  "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
+TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque that the fit corrects "
+                   "for: 'auto' the campaign's own estimate, a number a known lag in seconds; 0 (default): "
+                   "0x6077 as docs/conventions.md defines it. The estimate is reported in every case.")
 
 
 @app.command()
@@ -41,12 +47,15 @@ def campaign(
         None, help="Effects file (TOML, docs/effects.md) for the embedded emulator: the ideal vehicle "
                    "plus the effects it lists. Default: the prototype as described."),
     force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
+    estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
+    torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 
     sheet = load_datasheet(vehicle, datasheet)
+    lag = _identify_options(estimator, torque_lag)
     if faults is not None and bus is not None:
         fail("--faults applies to the embedded emulator; give the plan to 'qomni emulate --faults' "
               "serving the vehicle on --bus")
@@ -85,7 +94,7 @@ def campaign(
             f"{cob} {n}×" for cob, n in meta["missed_samples"].items()))
     console.print(f"campaign recorded in {out} ({time.perf_counter() - started:.1f} s wall); occupied "
                   f"rectangle {rect['length']:.2f} m × {rect['width']:.2f} m")
-    _identify_and_report(out)
+    _identify_and_report(out, estimator, lag)
     console.print(f"total wall time {time.perf_counter() - started:.1f} s")
 
 
@@ -128,12 +137,12 @@ def single_axis_command(
     _single_axis(out, bus, vehicle, sheet, seed, gui)
 
 
-def _identify_and_report(run_dir: Path) -> None:
+def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
     from qomni.ident.identify import identify_run, validate_run
 
-    result = guarded(lambda: identify_run(run_dir))
+    result = guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=torque_lag, estimator=estimator)))
     _print_parameters(result)
-    validation = guarded(lambda: validate_run(run_dir))
+    validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, result, validation)
 
@@ -141,14 +150,30 @@ def _identify_and_report(run_dir: Path) -> None:
 def _print_parameters(result) -> None:
     from qomni.conventions import PARAMETER_UNITS
 
-    table = Table(title="Identified parameters (paper Table 2)")
-    for col in ("Name", "Value", "Std. deviation", "Unit"):
-        table.add_column(col, justify="right" if col in ("Value", "Std. deviation") else "left")
+    table = Table(title=f"Identified parameters (paper Table 2), estimator {result.estimator}")
+    for col in ("Name", "Value", "Std. deviation", "Unit", "Rel. std", "Std (bootstrap)", "Determined by",
+                "Strongest correlation"):
+        table.add_column(col, justify="right" if col in ("Value", "Std. deviation", "Rel. std",
+                                                         "Std (bootstrap)") else "left")
     for name, value in result.values.items():
-        table.add_row(name, f"{value:.4f}", f"{result.std[name]:.4f}", PARAMETER_UNITS[name])
-    table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"])
+        table.add_row(name, f"{value:.4f}", f"{result.std[name]:.4f}", PARAMETER_UNITS[name],
+                      *result.report_row(name))
+    table.add_row("B_w", f"{result.B_w:.4f}", "fixed", PARAMETER_UNITS["B_w"], "", "", "", "")
     console.print(table)
     console.print(f"cond(Θ̂₁ᵀΘ̂₁) = {result.condition_number:.2f}  (paper: 11.56)")
+    if result.estimator_info.get("converged") is False:
+        console.print(f"warning: the {result.estimator} iterations did not converge "
+                      f"({result.estimator_info.get('iterations')} iterations); the values are the last iterate")
+    if result.estimator_info.get("active_bounds"):
+        console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
+    lag = result.torque_lag
+    if lag:
+        console.print(f"torque lag (0x6077 behind the applied torque) corrected for: {1e3 * lag['value']:.3f} ms "
+                      f"= {lag['cycles']:.2f} cycles ({lag['source']})")
+        if lag.get("estimate") is not None:
+            console.print(f"torque lag estimated from the campaign: {1e3 * lag['estimate']:.3f} ± "
+                          f"{1e3 * lag['estimate_std']:.3f} ms" +
+                          ("" if lag["source"] == "estimated" else " (--torque-lag auto corrects for it)"))
 
 
 def _print_validation(validation) -> None:
@@ -157,21 +182,24 @@ def _print_validation(validation) -> None:
     table.add_column("NRMSE", justify="right")
     table.add_column("RMS error", justify="right")
     table.add_column("NRMSE, moving rows", justify="right")
-    moving = validation.moving
+    table.add_column("NRMSE, sticking rows (stick-slip)", justify="right")
+    moving, sticking = validation.moving, validation.sticking
     for channel, value in validation.nrmse.items():
-        m = moving.get(channel, {})
+        m, s = moving.get(channel, {}), sticking.get(channel, {})
         cell = (f"{100 * m['nrmse']:.1f} % ({m['n_rows']} rows)" if m.get("nrmse") is not None
                 else "no moving rows")
-        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell)
+        stuck = (f"{100 * s['nrmse']:.1f} % ({s['n_rows']} rows)" if s.get("nrmse") is not None
+                 else "no sticking rows")
+        table.add_row(channel, f"{100 * value:.1f} %", f"{validation.rms_error[channel]:.3g}", cell, stuck)
     console.print(table)
 
 
 def _plots(run_dir: Path, result, validation) -> None:
-    from qomni.ident.regressor_rows import identification_blocks, validation_blocks
-    from qomni.ident.rundir import load_run
+    from qomni.ident.identify import load_corrected_run
     from qomni.ident.plots import torque_comparison
+    from qomni.ident.regressor_rows import identification_blocks, validation_blocks
 
-    signals, sheet, _ = load_run(run_dir)
+    signals, sheet, _ = guarded(lambda: load_corrected_run(run_dir))
     times = {name: signals.of_step(name).time for name in signals.steps()}
     torque_comparison(identification_blocks(signals, sheet), times, result,
                       run_dir / FIG_IDENTIFICATION,
@@ -182,12 +210,45 @@ def _plots(run_dir: Path, result, validation) -> None:
                       nrmse=validation.nrmse)
 
 
+
+def _identification_errors(fn):
+    """``fn()``, or a plain error for a torque lag that cannot be estimated or applied or a model that
+    cannot simulate the instruments of the iv estimator."""
+    from qomni.ident.instruments import InstrumentError
+    from qomni.ident.torque_timing import TorqueTimingError
+
+    try:
+        return fn()
+    except (TorqueTimingError, InstrumentError) as exc:
+        fail(str(exc))
+
+
+def _identify_options(estimator: str, torque_lag: str) -> str | float:
+    """Check --estimator; --torque-lag as ``"auto"`` or seconds. Anything else ends the command with a
+    plain error."""
+    from qomni.ident.estimators import ESTIMATORS
+
+    if estimator not in ESTIMATORS:
+        fail(f"--estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+    if torque_lag == "auto":
+        return torque_lag
+    try:
+        return float(torque_lag)
+    except ValueError:
+        fail(f"--torque-lag must be 'auto' or a number of seconds, got {torque_lag!r}")
+
+
 @app.command()
-def identify(run_dir: Path = typer.Argument(..., help="Run directory of a campaign.")):
+def identify(
+    run_dir: Path = typer.Argument(..., help="Run directory of a campaign."),
+    estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
+    torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
+):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
     from qomni.ident.identify import identify_run
 
-    _print_parameters(guarded(lambda: identify_run(run_dir)))
+    lag = _identify_options(estimator, torque_lag)
+    _print_parameters(guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
     console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
 
@@ -197,7 +258,7 @@ def validate(run_dir: Path = typer.Argument(..., help="Run directory with identi
     from qomni.ident.rundir import load_identification
     from qomni.ident.identify import validate_run
 
-    validation = guarded(lambda: validate_run(run_dir))
+    validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, guarded(lambda: load_identification(run_dir)), validation)
     console.print(f"written {run_dir / VALIDATION_JSON}")
