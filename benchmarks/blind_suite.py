@@ -56,14 +56,19 @@ def dask_vs_local(todo, work: Path, quick: bool, workers, runner, console) -> in
 
 def range_ends(work: Path, entries, console) -> int:
     """A quick campaign at each end of every effect's realistic range (qomni.suite.range_ends), in
-    turn; prints the table and returns 1 if any did not complete inside its limits."""
+    turn; prints the table, writes ``work/range_ends.json`` after every row and returns 1 if any did not
+    complete inside its limits."""
     from qomni.suite.range_ends import campaign_margins, range_end_cases
 
     table = Table(title="Campaign at the ends of each effect's realistic range (quick campaigns)")
     for col in ("Effect", "Table", "Completed", "Peak torque / limit", "At clip", "Straight |x| / x_max",
                 "Probe dead time", "Steering bw"):
         table.add_column(col, justify="left" if col in ("Effect", "Table") else "right")
-    failed, started = 0, time.perf_counter()
+    from dataclasses import asdict
+
+    from qomni.ident.rundir import write_json
+
+    failed, started, rows = 0, time.perf_counter(), []
     for i, (entry, effects) in enumerate(range_end_cases(entries)):
         out = work / f"{i:02d}_{entry}"
         if out.exists():
@@ -72,6 +77,8 @@ def range_ends(work: Path, entries, console) -> int:
             shutil.rmtree(out)
         row = campaign_margins(effects, out, seed=1 + i)
         failed += not row.completed
+        rows.append(dict(asdict(row), entry=entry, completed=row.completed))
+        write_json(work / "range_ends.json", {"rows": rows})
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for t in effects.values() for k, v in t.items())
         dead = row.probe.get("dead_time")
@@ -109,7 +116,7 @@ def main(argv=None) -> int:
     ap.add_argument("--recorded-only", action="store_true",
                     help="diagnose only the cases already recorded in --work (no new campaigns)")
     args = ap.parse_args(argv)
-    console = Console()
+    console = Console() if sys.stdout.isatty() else Console(width=200)
     if args.range_ends:
         return range_ends(args.work / "range_ends", args.effects, console)
     results_path = args.work / "blind_suite.json"

@@ -8,8 +8,10 @@ in the motion. So the probe, at rest in mode 1 (chassis still):
 
 1. commands both steering angles open loop with the nominal feed-forward (21) of a bang-bang
    acceleration ±``acceleration`` for ``pulse`` s each (Coulomb friction compensated as if sliding);
+   gentle (10 rad/s²): a ±40 rad/s² pulse left the ideal vehicle looking inclined to the diagnosis;
 2. fits Δα(t) = c·½·max(t − τ, 0)² to the mean steering angle over the accelerating half, τ on whole
-   cycles (the loop's resolution), c by least squares: τ is the dead time;
+   cycles (the loop's resolution), c by least squares: τ is the dead time (friction rounds the onset, so
+   a long delay reads up to two cycles early);
 3. brings the steering back to where it started with gains designed for ``max_dead_time``, and hands
    the campaign the steering bandwidth that keeps ``min_phase_margin`` with the measured τ
    (:func:`qomni.ident.control_design.delay_robust_bandwidth`).
@@ -83,8 +85,8 @@ class DeadTimeProbe:
         acceleration: rad/s² of the pulse; pulse: s of each half; settle: s to return and rest.
     """
 
-    def __init__(self, sheet: DataSheet, settings: ControllerSettings | None = None, acceleration: float = 40.0,
-                 pulse: float = 0.05, settle: float = 0.8):
+    def __init__(self, sheet: DataSheet, settings: ControllerSettings | None = None, acceleration: float = 10.0,
+                 pulse: float = 0.1, settle: float = 0.8):
         self.sheet, self.settings = sheet, settings or ControllerSettings()
         d, s = sheet.drive, self.settings
         self.cycles = int(round(pulse / d.cycle_time))

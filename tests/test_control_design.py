@@ -63,4 +63,4 @@ def test_a_quick_campaign_at_the_longest_realistic_actuator_delay_completes_insi
     assert row.completed, row.status
     assert row.peak_torque_ratio < 0.9, row
     meta = json.loads((tmp_path / "run" / "metadata.json").read_text())
-    assert meta["probe"]["dead_time"] == pytest.approx(0.02, abs=0.0041)
+    assert 0.01 <= meta["probe"]["dead_time"] <= 0.022          # read up to 2 cycles early (docs/effects.md)

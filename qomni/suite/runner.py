@@ -93,7 +93,7 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
             model = ideal_reference(Path(work), case.vehicle) / "identification.json"
             ref_dir = None
         d = diagnose_paths(model, run_dir, reference_dir=ref_dir, simulate=False)
-        write_report(d, run_dir / f"gap_{reference}")
+        write_report(d, run_dir / ("gap" if reference == "ideal" else "gap_twin"))
         _fill(result, d)
     except Exception as exc:  # a failed case is reported, not fatal to the suite
         result.error = f"{type(exc).__name__}: {exc}"
