@@ -116,6 +116,13 @@ class Diagnosis:
     data_run: dict = field(default_factory=dict)
     #: the reference run each hypothesis is tested beyond (its directory), or "none"
     reference: str = "none"
+    #: the reference run's residual channels under the model, its ``where`` breakdown, the model's RMS
+    #: residual there per channel (fitted rows, the channel's unit) and its forward-simulation error
+    #: before/after the accepted effects (as ``simulation``); empty without a reference run
+    reference_channels: list[ChannelData] = field(repr=False, default_factory=list)
+    reference_where: dict = field(default_factory=dict)
+    reference_rms: dict = field(default_factory=dict)
+    reference_simulation: dict = field(default_factory=dict)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -272,6 +279,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                    f"those rows are not fitted): {verdict}")
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
+    ref_chans = [] if ref_problem is None else ref_problem.channels
+    ref_sim = _simulation(ref_problem, model, base, final, accepted, sheet.geometry.r) \
+        if simulate and ref_problem is not None else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
@@ -281,7 +291,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
                      evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
                                             cache), data_run,
-                     str(reference_dir) if ref_problem is not None else "none")
+                     str(reference_dir) if ref_problem is not None else "none",
+                     ref_chans, where_.breakdown(ref_chans, lag), _own_floor(ref_problem), ref_sim)
 
 
 def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):
