@@ -58,6 +58,14 @@ def _by_step(channels) -> dict:
     return out
 
 
+def _shade_unfitted(ax, ch, label=None) -> None:
+    """Grey spans over the rows the fit leaves out (below the stiction threshold: sticking)."""
+    free = ~np.asarray(ch.fitted, bool)
+    if free.any() and not free.all():
+        ax.fill_between(ch.time, 0, 1, where=free, transform=ax.get_xaxis_transform(), color="0.88",
+                        step="mid", lw=0, label=label)
+
+
 def residual_series(d: Diagnosis) -> list[tuple[str, str]]:
     """One figure per campaign step: each channel's residual (measured − model) over the step's time,
     the overlaid effect's predicted residual, and the reference run's residual in the same channel."""
@@ -74,6 +82,7 @@ def residual_series(d: Diagnosis) -> list[tuple[str, str]]:
             ch = d.channels[i]
             ax = axes[row, 0]
             ax.plot(ch.time, ch.residual, color=DATA_COLOR, lw=0.6, label="residual (data)")
+            _shade_unfitted(ax, ch, label="not fitted (sticking)" if row == 0 else None)
             term = _effect_term(fp, i, effects) if fp is not None and effects else None
             if term is not None and np.any(term):
                 ax.plot(ch.time, term, color=EFFECT_COLOR, lw=1.2, label=label)
@@ -86,6 +95,7 @@ def residual_series(d: Diagnosis) -> list[tuple[str, str]]:
                 r = ref.get(ch.name)
                 if r is not None:
                     rax.plot(r.time, r.residual, color=TWIN_COLOR, lw=0.6)
+                    _shade_unfitted(rax, r)
                     lim = max(np.max(np.abs(ch.residual), initial=0), np.max(np.abs(r.residual), initial=0))
                     if lim > 0:
                         ax.set_ylim(-1.05 * lim, 1.05 * lim)
@@ -162,7 +172,8 @@ def forest(d: Diagnosis, top: int = 15) -> tuple[str, str] | None:
         ax.plot([100 * lo, 100 * hi], [k, k], color=color, lw=2)
         ax.plot(100 * ev.shrink_affected, k, "o", color=color, ms=6)
         m = c.magnitude
-        ax.annotate(f"{m.value:.3g} {m.unit} [{m.ci[0]:.3g}, {m.ci[1]:.3g}]  p={c.p_value:.2g}",
+        unit = "" if m.unit in ("", "-", "1") else f" {m.unit}"
+        ax.annotate(f"{m.value:.4g}{unit} [{m.ci[0]:.4g}, {m.ci[1]:.4g}]  p = {c.p_value:.2g}",
                     (1.01, k), xycoords=("axes fraction", "data"), va="center", fontsize=8)
     ax.axvline(0, color="k", lw=0.8)
     ax.set_yticks(y, [c.hypothesis.label for c in rows], fontsize=8)
@@ -174,34 +185,53 @@ def forest(d: Diagnosis, top: int = 15) -> tuple[str, str] | None:
     return "Which: hypotheses ranked (forest plot)", png(fig)
 
 
+#: Held-out RMS beyond this share of the data's (model) RMS is drawn clipped, its value written.
+HOLDOUT_CLIP = 300.0
+
+
 def holdout_bars(d: Diagnosis) -> tuple[str, str] | None:
-    """Held-out RMS per channel: the model as identified, the model with the accepted effects, and the
-    model's residual on the reference run in the same channel; relative to the first."""
+    """Held-out RMS per channel relative to the model's on the data: the data under the model with the
+    accepted effects (its bootstrap 95 % interval in the affected channel), and the reference run under
+    the model without and with them."""
     before = d.model_holdout_rms
     if not before:
         return None
     after = ({s.name: s.rms_after for s in d.accepted[-1].from_model.channels} if d.accepted else {})
+    ref = d.reference_holdout_rms
     names = [n for n in before if before[n] > 0]
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 0.32 * len(names) + 1.4))
-    y = np.arange(len(names))
-    ax.barh(y - 0.27, [100.0] * len(names), height=0.26, color=DATA_COLOR, label="data: model")
+    bars = [("data: model", DATA_COLOR, {n: before[n] for n in names})]
     if after:
-        ax.barh(y, [100 * after.get(n, np.nan) / before[n] for n in names], height=0.26,
-                color=EFFECT_COLOR, label="data: model + accepted effects")
-    if d.reference_rms:
-        ax.barh(y + 0.27, [100 * d.reference_rms.get(n, np.nan) / before[n] for n in names], height=0.26,
-                color=TWIN_COLOR, label="reference (twin): model")
-    for c in d.accepted:
-        ev = c.from_model
-        if ev.affected in names:
-            k = names.index(ev.affected)
-            lo, hi = ev.shrink_affected_ci
-            ax.plot([100 * (1 - hi), 100 * (1 - lo)], [k, k], color="k", lw=2)
+        bars.append(("data: model + accepted effects", EFFECT_COLOR, after))
+    if ref.get("model"):
+        bars.append(("reference (twin): model", TWIN_COLOR, ref["model"]))
+    if ref.get("with_effects"):
+        bars.append(("reference (twin): + accepted effects", "tab:pink", ref["with_effects"]))
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) * len(bars) / 2 + 1.4))
+    y = np.arange(len(names))
+    h = 0.85 / len(bars)
+    for k, (label, color, vals) in enumerate(bars):
+        rel = np.array([100 * vals.get(n, np.nan) / before[n] for n in names])
+        pos = y + (k - (len(bars) - 1) / 2) * h
+        ax.barh(pos, np.minimum(rel, HOLDOUT_CLIP), height=h * 0.9, color=color, label=label)
+        for p_, v in zip(pos, rel):
+            if v > HOLDOUT_CLIP:
+                ax.annotate(f"{v:.0f} %", (HOLDOUT_CLIP, p_), va="center", fontsize=7, xytext=(2, 0),
+                            textcoords="offset points")
+    if after:
+        off = (1 - (len(bars) - 1) / 2) * h
+        for c in d.accepted:
+            ev = c.from_model
+            if ev.affected in names:
+                k = names.index(ev.affected)
+                lo, hi = ev.shrink_affected_ci
+                ax.plot([100 * (1 - hi), 100 * (1 - lo)], [k + off, k + off], color="k", lw=2)
+    ax.axvline(100, color="k", lw=0.6, ls=":")
+    ax.set_xlim(0, HOLDOUT_CLIP * 1.12)
     ax.set_yticks(y, names, fontsize=8)
-    ax.set_ylim(len(names) - 0.5, -0.7)
-    ax.set_xlabel("held-out RMS residual, % of the model's (black: bootstrap 95 % interval of the "
-                  "affected channel)")
+    ax.set_ylim(len(names) - 0.5, -0.5)
+    ax.set_xlabel("held-out RMS residual, % of the model's on the data "
+                  "(black: 95 % bootstrap interval in the affected channel)")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     return "How far: held-out residual per channel", png(fig)

@@ -88,8 +88,9 @@ def candidate_json(c: Candidate, rank: int) -> dict:
 def gap_dict(d: Diagnosis) -> dict:
     """The content of ``gap.json``: ``effects`` ranked (all candidates, most held-out residual
     removed first; the accepted ones carry ``significant: true``), ``verdict``, ``accepted``,
-    ``where`` and ``simulation``; with a reference run, ``reference_rms`` (channel → the model's RMS
-    residual on the reference run, its floor) and ``reference_simulation`` (as ``simulation``).
+    ``where`` and ``simulation``; with a reference run, ``reference_holdout_rms`` (``model`` and
+    ``with_effects``: channel → RMS on the reference run, every row held out, like ``model_holdout_rms``)
+    and ``reference_simulation`` (as ``simulation``).
 
     An effect's ``holdout_shrink`` is 1 − RMS(after)/RMS(before) on held-out rows of its
     ``affected_channel``: before, the model as identified (with the effects accepted before it);
@@ -114,7 +115,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "base_fit_holdout_rms": d.holdout_rms,
         "where": d.where,
         "simulation": d.simulation,
-        "reference_rms": d.reference_rms,
+        "reference_holdout_rms": d.reference_holdout_rms,
         "reference_simulation": d.reference_simulation,
     })
 
@@ -139,7 +140,7 @@ def _which_table(gap: dict) -> str:
     rows = "".join(
         f"<tr class='{'acc' if e['significant'] else ''}'><td>{e['rank']}</td><td>{html.escape(e['name'])}</td>"
         f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(e['unit'])}</td>"
-        f"<td>[{_fmt(e['ci'][0], '.3g')}, {_fmt(e['ci'][1], '.3g')}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
+        f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
         f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} % [{_fmt(100 * e['holdout_shrink_ci'][0], '.1f')}, "
         f"{_fmt(100 * e['holdout_shrink_ci'][1], '.1f')}] ({html.escape(e['affected_channel'])})</td>"
         f"<td>{'yes' if e['significant'] else 'no'}</td>"
@@ -152,7 +153,8 @@ def _which_table(gap: dict) -> str:
 def _holdout_table(gap: dict) -> str:
     after = gap["accepted"][-1]["holdout_channels"] if gap["accepted"] else {}
     ci = {e["affected_channel"]: e["holdout_shrink_ci"] for e in gap["accepted"]}
-    ref = gap.get("reference_rms") or {}
+    ref = gap.get("reference_holdout_rms") or {}
+    ref_model, ref_after = ref.get("model", {}), ref.get("with_effects", {})
     rows = ""
     for n, before in gap["model_holdout_rms"].items():
         a = after.get(n, {}).get("rms_after")
@@ -161,11 +163,13 @@ def _holdout_table(gap: dict) -> str:
         interval = f" [{_fmt(100 * c[0], '.1f')}, {_fmt(100 * c[1], '.1f')}]" if c else ""
         rows += (f"<tr><td>{html.escape(n)}</td><td>{_fmt(before)}</td><td>{_fmt(a)}</td>"
                  f"<td>{'–' if shrink is None else _fmt(100 * shrink, '.1f') + ' %'}{interval}</td>"
-                 f"<td>{_fmt(ref.get(n))}</td></tr>")
+                 f"<td>{_fmt(ref_model.get(n))}</td><td>{_fmt(ref_after.get(n))}</td></tr>")
     return ("<table><tr><th>channel</th><th>data: model</th><th>data: + accepted effects</th>"
-            "<th>shrink [95 % bootstrap CI]</th><th>reference (twin): model</th></tr>"
-            f"{rows}</table><p class='note'>Held-out RMS residual in each channel's unit; the reference "
-            "column is what the model leaves on its own twin's run (its floor).</p>")
+            "<th>shrink [95 % bootstrap CI]</th><th>reference (twin): model</th>"
+            "<th>reference: + accepted effects</th></tr>"
+            f"{rows}</table><p class='note'>Held-out RMS residual in each channel's unit. The reference "
+            "columns are what the model leaves on its own twin's run (every row held out), without and with "
+            "the accepted effects at the levels fitted to the data.</p>")
 
 
 def _simulation_table(sim: dict, ref: dict) -> str:

@@ -74,7 +74,9 @@ def diagnosis():
                      {hostile_channel: 0.22, "rotation/theta_ch": 0.05},
                      {hostile_channel: 0.5, "rotation/theta_ch": 0.05},
                      {"status": "complete", "steps_used": ["rotation"]}, f"/twin/{HOSTILE}",
-                     ref, breakdown(ref, 10), {hostile_channel: 0.05, "rotation/theta_ch": 0.05}, ref_sim)
+                     ref, breakdown(ref, 10),
+                     {"model": {hostile_channel: 0.05, "rotation/theta_ch": 0.05},
+                      "with_effects": {hostile_channel: 0.07, "rotation/theta_ch": 0.05}}, ref_sim)
 
 
 def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
@@ -94,10 +96,10 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert page.count(": residual over the step</figcaption>") == 2
     # Intervals of gap.json: the effect's magnitude CI and its held-out shrink bootstrap CI.
     e = gap["effects"][0]
-    assert f"[{e['ci'][0]:.3g}, {e['ci'][1]:.3g}]" in page
+    assert f"[{e['ci'][0]:.4g}, {e['ci'][1]:.4g}]" in page
     lo, hi = e["holdout_shrink_ci"]
     assert f"[{100 * lo:.1f}, {100 * hi:.1f}]" in page
-    assert gap["reference_rms"] and gap["reference_simulation"]
+    assert gap["reference_holdout_rms"]["with_effects"] and gap["reference_simulation"]
     # Figures are embedded, valid PNGs; no file beside the page but the two outputs.
     pngs = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)
     assert len(pngs) >= 6
@@ -112,7 +114,7 @@ def test_report_without_reference_or_effect(diagnosis, tmp_path):
     as not accepted, and no reference column is drawn."""
     d = diagnosis
     d.accepted, d.verdict, d.reference = [], "no significant unmodelled effect", "none"
-    d.reference_channels, d.reference_where, d.reference_rms, d.reference_simulation = [], {}, {}, {}
+    d.reference_channels, d.reference_where, d.reference_holdout_rms, d.reference_simulation = [], {}, {}, {}
     d.candidates[0].significant = False
     page = write_report(d, tmp_path)[1].read_text()
     assert "Reference: none" in page
