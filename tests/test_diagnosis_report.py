@@ -120,3 +120,21 @@ def test_report_without_reference_or_effect(diagnosis, tmp_path):
     assert "Reference: none" in page
     assert "(top ranked, not accepted)" in page
     assert "reference (twin), same scale" not in page
+
+
+def test_reference_holdout_is_the_reference_runs_residual(diagnosis):
+    """The reference run's RMS under the model is its residual's RMS over its fitted rows (torque
+    channels: no nuisance terms), and adding an effect at a level changes it by that effect's columns."""
+    from qomni.diagnosis.diagnose import _reference_holdout
+    from qomni.diagnosis.problem import make_problem
+
+    ref = diagnosis.reference_channels
+    fp, _ = make_problem(ref, 10, ref)
+    fit = diagnosis.accepted[0].fit
+    out = _reference_holdout(fp, [fit], 10)
+    for ch in ref:
+        r = ch.residual[ch.fitted]
+        assert out["model"][ch.name] == pytest.approx(np.sqrt(np.mean(r ** 2)))
+        after = r - fit.theta[0] * ch.velocity[ch.fitted]
+        assert out["with_effects"][ch.name] == pytest.approx(np.sqrt(np.mean(after ** 2)))
+    assert _reference_holdout(None, [fit], 10) == {}
