@@ -20,7 +20,7 @@ Procedure
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +117,14 @@ class Diagnosis:
     data_run: dict = field(default_factory=dict)
     #: the reference run each hypothesis is tested beyond (its directory), or "none"
     reference: str = "none"
+    #: the reference run's residual channels under the model, its ``where`` breakdown, its RMS per
+    #: channel (every row held out, the channel's unit) under the model (``"model"``) and the model with
+    #: the accepted effects at their fitted levels (``"with_effects"``), and its forward-simulation error
+    #: before/after the accepted effects (as ``simulation``); empty without a reference run
+    reference_channels: list[ChannelData] = field(repr=False, default_factory=list)
+    reference_where: dict = field(default_factory=dict)
+    reference_holdout_rms: dict = field(default_factory=dict)
+    reference_simulation: dict = field(default_factory=dict)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -279,6 +287,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                    f"those rows are not fitted): {verdict}")
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
+    ref_chans = [] if ref_problem is None else ref_problem.channels
+    ref_sim = _simulation(ref_problem, model, base, final, accepted, sheet.geometry.r) \
+        if simulate and ref_problem is not None else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
@@ -288,7 +299,23 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
                      evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
                                             cache), data_run,
-                     str(reference_dir) if ref_problem is not None else "none")
+                     str(reference_dir) if ref_problem is not None else "none",
+                     ref_chans, where_.breakdown(ref_chans, lag),
+                     _reference_holdout(ref_problem, accepted_fits, len(base.delta_p)), ref_sim)
+
+
+def _reference_holdout(ref_problem, accepted_fits: list[Fit], n_base: int) -> dict:
+    """The reference run's RMS per channel under the model and the model with the accepted effects, over
+    its fitted rows (none of which the model was identified on)."""
+    if ref_problem is None:
+        return {}
+    ref_problem = replace(ref_problem, holdout_rows=ref_problem.fit_rows)
+    out = {"model": evaluation.holdout_rms(ref_problem, evaluation.on_model(None, None, np.zeros(0), n_base))}
+    if accepted_fits:
+        theta = np.concatenate([f.theta for f in accepted_fits])
+        out["with_effects"] = evaluation.holdout_rms(
+            ref_problem, evaluation.on_model(combine(accepted_fits), None, theta, n_base))
+    return out
 
 
 def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):

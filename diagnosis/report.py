@@ -1,10 +1,9 @@
 """``gap.json`` and the HTML report of a diagnosis (plots embedded as PNG)."""
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +11,6 @@ import numpy as np
 from qomni.ident.rundir import write_json
 
 from .diagnose import Diagnosis
-from .evaluation import predicted_residual
 from .fit import Candidate
 
 GAP_JSON = "gap.json"
@@ -90,7 +88,9 @@ def candidate_json(c: Candidate, rank: int) -> dict:
 def gap_dict(d: Diagnosis) -> dict:
     """The content of ``gap.json``: ``effects`` ranked (all candidates, most held-out residual
     removed first; the accepted ones carry ``significant: true``), ``verdict``, ``accepted``,
-    ``where`` and ``simulation``.
+    ``where`` and ``simulation``; with a reference run, ``reference_holdout_rms`` (``model`` and
+    ``with_effects``: channel → RMS on the reference run, every row held out, like ``model_holdout_rms``)
+    and ``reference_simulation`` (as ``simulation``).
 
     An effect's ``holdout_shrink`` is 1 − RMS(after)/RMS(before) on held-out rows of its
     ``affected_channel``: before, the model as identified (with the effects accepted before it);
@@ -115,79 +115,137 @@ def gap_dict(d: Diagnosis) -> dict:
         "base_fit_holdout_rms": d.holdout_rms,
         "where": d.where,
         "simulation": d.simulation,
+        "reference_holdout_rms": d.reference_holdout_rms,
+        "reference_simulation": d.reference_simulation,
     })
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode()
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` atomically (a temporary file beside ``path``, then renamed over it)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
 
 
-def _figures(d: Diagnosis) -> list[tuple[str, str]]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _fmt(x, spec: str = ".4g") -> str:
+    return "–" if x is None or x != x else format(x, spec)
 
-    figs = []
-    # Where: relative residual per channel.
-    names = list(d.where)
-    fig, ax = plt.subplots(figsize=(8, 0.35 * len(names) + 1))
-    vals = [d.where[n]["nrmse"] if d.where[n]["nrmse"] is not None else 0.0 for n in names]
-    colors = ["tab:red" if n in d.structured else "tab:blue" for n in names]
-    ax.barh(names, [100 * v for v in vals], color=colors)
-    ax.set_xlabel("residual RMS / measured RMS [%] (torque channels; red: structured)")
-    ax.invert_yaxis()
-    figs.append(("Where: residual per channel", _png(fig)))
-    # Regimes heat map.
-    regimes = ["near_standstill", "slow", "fast", "low_acceleration", "high_acceleration",
-               "small_steering_angle", "large_steering_angle"]
-    torque = [n for n in names if d.where[n]["kind"] == "torque"]
-    if torque:
-        grid = np.array([[d.where[n]["regimes"].get(r, {}).get("rms", np.nan) / max(
-            d.where[n]["rms_residual"], 1e-12) for r in regimes] for n in torque])
-        fig, ax = plt.subplots(figsize=(9, 0.4 * len(torque) + 1.5))
-        im = ax.imshow(grid, aspect="auto", cmap="viridis")
-        ax.set_xticks(range(len(regimes)), regimes, rotation=30, ha="right")
-        ax.set_yticks(range(len(torque)), torque)
-        fig.colorbar(im, label="RMS residual / channel RMS residual")
-        figs.append(("Where: operating regimes", _png(fig)))
-    # Which: ranking.
-    top = d.candidates[:12]
-    fig, ax = plt.subplots(figsize=(8, 0.35 * len(top) + 1))
-    ax.barh([c.hypothesis.label for c in top], [100 * c.from_model.shrink_affected for c in top],
-            color=["tab:green" if c.significant else "tab:gray" for c in top])
-    ax.set_xlabel("held-out residual removed in the affected channel [%] (green: significant)")
-    ax.invert_yaxis()
-    figs.append(("Which: hypotheses ranked by held-out residual removed", _png(fig)))
-    # How far: before/after time series of the accepted effects' affected channels.
-    if d.accepted and d.final_fit is not None:
-        fp, hp = d.problems
-        shown = []
-        for c in d.accepted:
-            name = c.evaluation.affected
-            if name in shown:
-                continue
-            shown.append(name)
-            i = next(k for k, ch in enumerate(hp.channels) if ch.name == name)
-            ch = hp.channels[i]
-            rows = hp.holdout_rows[i]
-            fig, ax = plt.subplots(figsize=(9, 3))
-            ax.plot(ch.time[rows], predicted_residual(hp, i, d.base_fit, rows), ".", ms=1,
-                    label="before (model)")
-            ax.plot(ch.time[rows], predicted_residual(hp, i, d.final_fit, rows), ".", ms=1,
-                    label="after (model + effect)")
-            ax.set_xlabel("time [s]")
-            ax.set_ylabel(f"held-out residual [{ch.unit}]")
-            ax.legend(markerscale=8)
-            figs.append((f"How far: {name}, held-out rows", _png(fig)))
-    return figs
+
+def _img(title: str, data: str) -> str:
+    return f"<figure><img alt='{html.escape(title, quote=True)}' src='data:image/png;base64,{data}'/>" \
+           f"<figcaption>{html.escape(title)}</figcaption></figure>"
+
+
+def _which_table(gap: dict) -> str:
+    rows = "".join(
+        f"<tr class='{'acc' if e['significant'] else ''}'><td>{e['rank']}</td><td>{html.escape(e['name'])}</td>"
+        f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(e['unit'])}</td>"
+        f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
+        f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} % [{_fmt(100 * e['holdout_shrink_ci'][0], '.1f')}, "
+        f"{_fmt(100 * e['holdout_shrink_ci'][1], '.1f')}] ({html.escape(e['affected_channel'])})</td>"
+        f"<td>{'yes' if e['significant'] else 'no'}</td>"
+        f"<td>{'yes' if e['identifiability']['separable'] else 'no'}</td></tr>"
+        for e in gap["effects"] if e["magnitude"] is not None)
+    return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th><th>p</th>"
+            f"<th>held-out shrink [95 % CI] (channel)</th><th>significant</th><th>separable</th></tr>{rows}</table>")
+
+
+def _holdout_table(gap: dict) -> str:
+    after = gap["accepted"][-1]["holdout_channels"] if gap["accepted"] else {}
+    ci = {e["affected_channel"]: e["holdout_shrink_ci"] for e in gap["accepted"]}
+    ref = gap.get("reference_holdout_rms") or {}
+    ref_model, ref_after = ref.get("model", {}), ref.get("with_effects", {})
+    rows = ""
+    for n, before in gap["model_holdout_rms"].items():
+        a = after.get(n, {}).get("rms_after")
+        shrink = None if a is None or not before else 1 - a / before
+        c = ci.get(n)
+        interval = f" [{_fmt(100 * c[0], '.1f')}, {_fmt(100 * c[1], '.1f')}]" if c else ""
+        rows += (f"<tr><td>{html.escape(n)}</td><td>{_fmt(before)}</td><td>{_fmt(a)}</td>"
+                 f"<td>{'–' if shrink is None else _fmt(100 * shrink, '.1f') + ' %'}{interval}</td>"
+                 f"<td>{_fmt(ref_model.get(n))}</td><td>{_fmt(ref_after.get(n))}</td></tr>")
+    return ("<table><tr><th>channel</th><th>data: model</th><th>data: + accepted effects</th>"
+            "<th>shrink [95 % bootstrap CI]</th><th>reference (twin): model</th>"
+            "<th>reference: + accepted effects</th></tr>"
+            f"{rows}</table><p class='note'>Held-out RMS residual in each channel's unit. The reference "
+            "columns are what the model leaves on its own twin's run (every row held out), without and with "
+            "the accepted effects at the levels fitted to the data.</p>")
+
+
+def _simulation_table(sim: dict, ref: dict) -> str:
+    rows = ""
+    for n, s in sim.items():
+        if s["before"]["rms"] != s["before"]["rms"]:
+            continue
+        r = ref.get(n)
+        rows += (f"<tr><td>{html.escape(n)}</td><td>{_fmt(s['before']['rms'])}</td><td>{_fmt(s['after']['rms'])}</td>"
+                 f"<td>{_fmt(100 * s['shrink'], '.1f')} %</td>"
+                 f"<td>{_fmt(r['before']['rms']) if r else '–'}</td><td>{_fmt(r['after']['rms']) if r else '–'}</td>"
+                 f"<td>{html.escape(s['before']['unit'])}</td></tr>")
+    return ("<table><tr><th>channel</th><th>data: before</th><th>data: after</th><th>shrink</th>"
+            "<th>reference: before</th><th>reference: after</th><th>unit</th></tr>"
+            f"{rows}</table>")
+
+
+def _structure_line(d: Diagnosis) -> str:
+    from .where import structured
+    tested = structured(d.where)
+    line = ("Channels whose residual under the model fails the whiteness or input-correlation test: "
+            + html.escape(", ".join(tested) or "none") + ".")
+    if d.accepted:
+        line += " The accepted effects are tested on held-out data below (How far)."
+    elif d.structured:
+        line += " Structure no named effect explains: " + html.escape(", ".join(d.structured)) + "."
+    return line
+
+
+STYLE = """body{font-family:sans-serif;max-width:1150px;margin:auto;color:#222}
+td,th{padding:2px 8px;text-align:right;border-bottom:1px solid #ddd}td:nth-child(-n+3){text-align:left}
+table{border-collapse:collapse;font-size:90%}tr.acc{background:#e8f5e9}.verdict{font-size:130%;padding:8px;
+background:#f3f3f3;border-left:6px solid #2e7d32}figure{margin:10px 0}img{max-width:100%}
+figcaption,.note{font-size:85%;color:#555}"""
+
+
+def report_html(d: Diagnosis, gap: dict) -> str:
+    """The HTML page of a diagnosis: headline (verdict, data, reference), Where, Which, How far. User
+    text (paths, channel and effect names) is escaped; figures are embedded PNGs."""
+    from . import figures
+
+    where_figs = figures.residual_series(d)
+    extra = figures.regimes_and_bands(d)
+    which = figures.forest(d)
+    hold = figures.holdout_bars(d)
+    sim = figures.simulation_bars(d)
+    _, overlay = figures.overlay_effects(d)
+    ref = d.reference if d.reference != "none" else "none (each hypothesis tested against zero)"
+    status = gap["data_run"].get("status", "not recorded") if gap.get("data_run") else "not recorded"
+    return f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>Sim-to-real gap</title>
+<style>{STYLE}</style></head><body>
+<h1>Sim-to-real gap diagnosis</h1>
+<p class="verdict"><b>Verdict: {html.escape(d.verdict)}</b></p>
+<p>Model: {html.escape(d.model_source)}<br>Data: {html.escape(d.data_source)} (run status:
+{html.escape(str(status))})<br>Reference: {html.escape(ref)}<br>Held out: {html.escape(d.holdout)}</p>
+<h2>Where: the residual over the campaign</h2>
+<p>Each channel's residual (measured − model) per campaign step; red: {html.escape(overlay or "no effect")};
+right: the same channel on the reference run, same scale.</p>
+<p>{_structure_line(d)}</p>
+{"".join(_img(t, p) for t, p in where_figs)}
+{_img(*extra) if extra else ""}
+<h2>Which: hypotheses</h2>
+{_img(*which) if which else ""}
+{_which_table(gap)}
+<h2>How far: held-out residual</h2>
+{_img(*hold) if hold else ""}
+{_holdout_table(gap)}
+<h2>How far: forward simulation (1 s windows from the measured state)</h2>
+{_img(*sim) if sim else ""}
+{_simulation_table(d.simulation, d.reference_simulation)}
+</body></html>"""
 
 
 def write_report(d: Diagnosis, out: str | Path) -> tuple[Path, Path]:
-    """Write ``gap.json`` and ``report.html`` into ``out`` (created). Returns both paths."""
+    """Write ``gap.json`` and ``report.html`` into ``out`` (created), each atomically. Returns both
+    paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     gap = gap_dict(d)
@@ -198,33 +256,7 @@ def write_report(d: Diagnosis, out: str | Path) -> tuple[Path, Path]:
         write_json(out / AUGMENTED_JSON, _finite(augmented))
         if d.data_metadata is not None and d.data_metadata.exists():
             # The data sheet export-fmu needs, so that `qomni export-fmu OUT` works on this directory.
-            (out / "metadata.json").write_text(d.data_metadata.read_text())
-    rows = "".join(
-        f"<tr><td>{e['rank']}</td><td>{html.escape(e['name'])}</td><td>{html.escape(e['variant'])}</td>"
-        f"<td>{e['magnitude']:.4g} {html.escape(e['unit'])}</td>"
-        f"<td>[{e['ci'][0]:.3g}, {e['ci'][1]:.3g}]</td><td>{e['p_value']:.2g}</td>"
-        f"<td>{100 * e['holdout_shrink']:.1f} % ({html.escape(e['affected_channel'])})</td>"
-        f"<td>{'yes' if e['significant'] else 'no'}</td>"
-        f"<td>{'yes' if e['identifiability']['separable'] else 'no'}</td></tr>"
-        for e in gap["effects"] if e["magnitude"] is not None)
-    sim = "".join(
-        f"<tr><td>{html.escape(n)}</td><td>{s['before']['rms']:.4g}</td><td>{s['after']['rms']:.4g}</td>"
-        f"<td>{s['before']['unit']}</td><td>{100 * s['shrink']:.1f} %</td></tr>"
-        for n, s in d.simulation.items() if s["before"]["rms"] == s["before"]["rms"])
-    figs = "".join(f"<h3>{html.escape(t)}</h3><img src='data:image/png;base64,{p}'/>" for t, p in _figures(d))
-    page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>Sim-to-real gap</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}td,th{{padding:2px 8px;text-align:right}}
-td:nth-child(2),td:nth-child(3){{text-align:left}}</style></head><body>
-<h1>Sim-to-real gap diagnosis</h1>
-<p><b>Verdict: {html.escape(d.verdict)}</b></p>
-<p>Model: {html.escape(d.model_source)} — data: {html.escape(d.data_source)} — held out: {html.escape(d.holdout)}</p>
-<p>Structured residual (whiteness / input correlation): {html.escape(', '.join(d.structured) or 'none')}</p>
-<h2>Which: hypotheses</h2><table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th>
-<th>95 % CI</th><th>p</th><th>held-out shrink</th><th>significant</th><th>separable</th></tr>{rows}</table>
-<h2>How far: forward simulation (1 s windows from the measured state)</h2>
-<table><tr><th>channel</th><th>RMS before</th><th>RMS after</th><th>unit</th><th>shrink</th></tr>{sim}</table>
-<h2>Figures</h2>{figs}
-</body></html>"""
+            _write_text(out / "metadata.json", d.data_metadata.read_text())
     html_path = out / REPORT_HTML
-    html_path.write_text(page)
+    _write_text(html_path, report_html(d, gap))
     return json_path, html_path
