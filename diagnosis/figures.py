@@ -20,6 +20,7 @@ def unit_text(unit: str) -> str:
     """A unit as printed beside a number: nothing for a dimensionless quantity ("-", "1")."""
     return "" if unit in ("-", "1") else unit
 
+
 DATA_COLOR = "tab:blue"
 TWIN_COLOR = "tab:gray"
 EFFECT_COLOR = "tab:red"
