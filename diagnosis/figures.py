@@ -15,6 +15,12 @@ import numpy as np
 from .diagnose import Diagnosis, _effect_term
 from .where import BANDS
 
+
+def unit_text(unit: str) -> str:
+    """A unit as printed beside a number: nothing for a dimensionless quantity ("-", "1")."""
+    return "" if unit in ("-", "1") else unit
+
+
 DATA_COLOR = "tab:blue"
 TWIN_COLOR = "tab:gray"
 EFFECT_COLOR = "tab:red"
@@ -172,7 +178,7 @@ def forest(d: Diagnosis, top: int = 15) -> tuple[str, str] | None:
         ax.plot([100 * lo, 100 * hi], [k, k], color=color, lw=2)
         ax.plot(100 * ev.shrink_affected, k, "o", color=color, ms=6)
         m = c.magnitude
-        unit = "" if m.unit in ("", "-", "1") else f" {m.unit}"
+        unit = f" {unit_text(m.unit)}" if unit_text(m.unit) else ""
         ax.annotate(f"{m.value:.4g}{unit} [{m.ci[0]:.4g}, {m.ci[1]:.4g}]  p = {c.p_value:.2g}",
                     (1.01, k), xycoords=("axes fraction", "data"), va="center", fontsize=8)
     ax.axvline(0, color="k", lw=0.8)
@@ -207,7 +213,7 @@ def holdout_bars(d: Diagnosis) -> tuple[str, str] | None:
     if ref.get("with_effects"):
         bars.append(("reference (twin): + accepted effects", "tab:pink", ref["with_effects"]))
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) * len(bars) / 2 + 1.4))
+    fig, ax = plt.subplots(figsize=(9, 0.17 * len(names) * len(bars) + 1.4))
     y = np.arange(len(names))
     h = 0.85 / len(bars)
     for k, (label, color, vals) in enumerate(bars):

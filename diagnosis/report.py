@@ -11,6 +11,7 @@ import numpy as np
 from qomni.ident.rundir import write_json
 
 from .diagnose import Diagnosis
+from .figures import unit_text
 from .fit import Candidate
 
 GAP_JSON = "gap.json"
@@ -139,7 +140,7 @@ def _img(title: str, data: str) -> str:
 def _which_table(gap: dict) -> str:
     rows = "".join(
         f"<tr class='{'acc' if e['significant'] else ''}'><td>{e['rank']}</td><td>{html.escape(e['name'])}</td>"
-        f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(e['unit'])}</td>"
+        f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(unit_text(e['unit']))}</td>"
         f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
         f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} % [{_fmt(100 * e['holdout_shrink_ci'][0], '.1f')}, "
         f"{_fmt(100 * e['holdout_shrink_ci'][1], '.1f')}] ({html.escape(e['affected_channel'])})</td>"
@@ -190,8 +191,14 @@ def _simulation_table(sim: dict, ref: dict) -> str:
 def _structure_line(d: Diagnosis) -> str:
     from .where import structured
     tested = structured(d.where)
-    line = ("Channels whose residual under the model fails the whiteness or input-correlation test: "
-            + html.escape(", ".join(tested) or "none") + ".")
+    line = ("Channels whose residual under the model fails the whiteness or input-correlation test: data: "
+            + html.escape(", ".join(tested) or "none"))
+    if d.reference_where:
+        on_ref = set(structured(d.reference_where))
+        line += ("; reference (twin): " + html.escape(", ".join(n for n in d.reference_where if n in on_ref)
+                                                       or "none")
+                 + " (structure the twin shows as well is the model's own, not an unmodelled effect)")
+    line += "."
     if d.accepted:
         line += " The accepted effects are tested on held-out data below (How far)."
     elif d.structured:

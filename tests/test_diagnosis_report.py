@@ -99,6 +99,7 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert f"[{e['ci'][0]:.4g}, {e['ci'][1]:.4g}]" in page
     lo, hi = e["holdout_shrink_ci"]
     assert f"[{100 * lo:.1f}, {100 * hi:.1f}]" in page
+    assert "whiteness or input-correlation test: data: " in page and "; reference (twin): " in page
     assert gap["reference_holdout_rms"]["with_effects"] and gap["reference_simulation"]
     # Figures are embedded, valid PNGs; no file beside the page but the two outputs.
     pngs = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)
