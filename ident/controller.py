@@ -42,7 +42,9 @@ class ControllerSettings:
     # The steering loop keeps this phase margin (deg) with the dead time the probe measures
     # (DeadTimeProbe); the default bandwidth has 36° without dead time, so an undelayed vehicle keeps it.
     min_phase_margin: float = 30.0
-    probe: bool = True  # measure the actuator dead time first and lower the steering bandwidth to it
+    # Measure the actuator dead time first and lower the steering bandwidth to it (DeadTimeProbe). Off by
+    # default: with it, the blind diagnosis of an ideal run against its twin named a 2 mrad incline.
+    probe: bool = False
     max_dead_time: float = 0.03  # s, the dead time the gains are designed for when the probe sees none
 
 

@@ -50,8 +50,9 @@ class RangeEnd:
                 and self.excursion <= (1 + SPACE_TOLERANCE) * self.room)
 
 
-def campaign_margins(effects: dict, out: Path, *, seed: int = 1, quick: bool = True) -> RangeEnd:
-    """Run a campaign on the ideal vehicle with ``effects`` into ``out`` and measure its margins."""
+def campaign_margins(effects: dict, out: Path, *, seed: int = 1, quick: bool = True, probe: bool = True) -> RangeEnd:
+    """Run a campaign on the ideal vehicle with ``effects`` into ``out`` (with the dead-time probe unless
+    ``probe`` is false) and measure its margins."""
     from qomni.embedded import embedded_vehicle
     from qomni.emulator.description import VehicleDescription
     from qomni.emulator.effects import EffectSet
@@ -63,7 +64,7 @@ def campaign_margins(effects: dict, out: Path, *, seed: int = 1, quick: bool = T
     description = VehicleDescription.load()
     sheet = description.datasheet
     settings = CampaignSettings.quick(seed=seed) if quick else CampaignSettings(seed=seed)
-    campaign = Campaign(sheet, out, settings, source="range ends")
+    campaign = Campaign(sheet, out, settings, ControllerSettings(probe=probe), source="range ends")
     try:
         with embedded_vehicle(description, seed=seed, effects=EffectSet.from_dict(effects)) as link:
             campaign.run(link)
