@@ -98,8 +98,9 @@ def test_irls_rejects_outlier_rows_that_bias_wls(recorded, tmp_path):
     err = lambda r: {n: abs(r.values[n] / getattr(truth, n) - 1) for n in CHASSIS}  # noqa: E731
     wls = err(identify_run(run_dir, torque_lag=0.0, estimator="wls"))
     irls_result = identify_run(run_dir, torque_lag=0.0, estimator="irls")
-    assert max(wls.values()) > 0.03
-    assert max(err(irls_result).values()) < 0.03
+    irls = err(irls_result)
+    # the outliers bias WLS (by 1.5–4 % on a quick campaign, depending on the recording); IRLS rejects them
+    assert max(irls.values()) < 0.03 and max(irls.values()) < 0.5 * max(wls.values()), (wls, irls)
     info = json.loads((run_dir / "identification.json").read_text())["estimator"]
     assert info["name"] == "irls" and info["rows_rejected"] > 0
 
