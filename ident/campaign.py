@@ -249,10 +249,11 @@ class Campaign:
         found, measurement = self.probe.run(self.vehicle, measurement, record)
         writer.flush()
         meta["segments"].append({"name": "probe", "k": 1, "t_start": start, "t_end": measurement.time})
-        for ctrl in self.controllers:
-            ctrl.retune(found.steering_bandwidth)
         meta["probe"] = asdict(found)
-        meta["controller"]["steering_bandwidth"] = found.steering_bandwidth
+        if self.controller_settings.probe_retunes:
+            for ctrl in self.controllers:
+                ctrl.retune(found.steering_bandwidth)
+            meta["controller"]["steering_bandwidth"] = found.steering_bandwidth
         self._write_metadata(meta)
         return measurement
 

@@ -46,6 +46,9 @@ class ControllerSettings:
     # default: with it, the blind diagnosis of an ideal run against its twin named a 2 mrad incline.
     probe: bool = False
     max_dead_time: float = 0.03  # s, the dead time the gains are designed for when the probe sees none
+    # Whether the probe's reading sets the steering bandwidth. A run that must repeat another's campaign
+    # exactly (the digital twin's reference run) probes too but keeps the bandwidth the other run recorded.
+    probe_retunes: bool = True
 
 
 @dataclass

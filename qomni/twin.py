@@ -126,7 +126,8 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     result = load_identification(identification)
     description = twin_description(result, sheet, str(identification))
-    key = {"twin": twin_toml(description), "settings": meta.get("settings", {})}
+    controller = _controller_of(meta)
+    key = {"twin": twin_toml(description), "settings": meta.get("settings", {}), "controller": asdict(controller)}
     stamp = cache / "twin.json"
     if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
         done = read_json(cache / METADATA)
@@ -138,7 +139,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         shutil.rmtree(cache)
     cache.mkdir(parents=True)
     (cache / "twin.toml").write_text(key["twin"])
-    run = Campaign(sheet, cache, settings, source=f"digital twin of {identification}")
+    run = Campaign(sheet, cache, settings, controller, source=f"digital twin of {identification}")
     if on_progress is not None:
         run.on_progress = on_progress
     with embedded_vehicle(description, seed=settings.seed, effects=EffectSet.ideal()) as link:
@@ -147,6 +148,23 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
 
     write_json(stamp, key)
     return cache
+
+
+def _controller_of(meta: dict):
+    """The campaign controller the data's run used (``metadata.json`` ``controller``), so the twin's
+    campaign is the same: with the dead-time probe the twin probes as well but keeps the steering
+    bandwidth the data's run recorded. Settings a run did not record keep their defaults."""
+    from dataclasses import fields
+
+    from qomni.ident.controller import ControllerSettings
+
+    recorded = meta.get("controller") or {}
+    known = {f.name for f in fields(ControllerSettings)}
+    values = {k: v for k, v in recorded.items() if k in known}
+    try:
+        return ControllerSettings(**{**values, "probe_retunes": False})
+    except TypeError as exc:
+        raise TwinError(f"metadata.json controller: {exc}") from exc
 
 
 __all__ = ["TWIN_REFERENCE", "TwinError", "twin_description", "twin_reference", "twin_toml", "write_twin"]

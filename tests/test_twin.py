@@ -43,3 +43,13 @@ def test_an_unphysical_identification_has_no_twin(name, value):
         result = replace(result, values={**result.values, name: value})
     with pytest.raises(TwinError, match=name):
         twin_description(result, DataSheet.load())
+
+
+def test_the_twin_repeats_the_data_runs_controller_with_its_recorded_steering_bandwidth():
+    """A data run that probed its dead time recorded the bandwidth it then used; the twin probes as well (the
+    same campaign, probe step included) but keeps that bandwidth instead of retuning to its own reading."""
+    from qomni.twin import _controller_of
+
+    c = _controller_of({"controller": {"probe": True, "steering_bandwidth": 13.4, "retired_setting": 1}})
+    assert c.probe and c.steering_bandwidth == 13.4 and not c.probe_retunes
+    assert _controller_of({}).steering_bandwidth == 45.0 and not _controller_of({}).probe

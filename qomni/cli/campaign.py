@@ -49,10 +49,15 @@ def campaign(
     force: bool = typer.Option(False, help="Replace the campaign (and single-axis run) already in --out."),
     estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
     torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
+    dead_time_probe: bool = typer.Option(
+        False, "--dead-time-probe",
+        help="First measure the actuator dead time with a short steering pulse at rest and lower the "
+             "steering bandwidth to keep a 30° phase margin with it (needed above about 6 ms of delay)."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
+    from qomni.ident.controller import ControllerSettings
 
     sheet = load_datasheet(vehicle, datasheet)
     lag = _identify_options(estimator, torque_lag)
@@ -73,7 +78,7 @@ def campaign(
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
-        run = Campaign(sheet, out, settings, source=source)
+        run = Campaign(sheet, out, settings, ControllerSettings(probe=dead_time_probe), source=source)
     except ValueError as exc:
         fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
