@@ -149,6 +149,26 @@ def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
     return float(stats.f.sf(F, q, dof))
 
 
+def presence(fit: Fit, tail: int) -> float:
+    """p-value of the last ``tail`` effect coefficients being zero: a Wald test, θᵀ Σ_θ⁺ θ against χ²
+    with rank(Σ_θ) degrees of freedom, Σ_θ from :func:`solve` (with n/L effective rows).
+
+    The F test asks whether the data need a different level of the hypothesis than the reference run
+    has (θ ≠ θ₀); this asks whether the level the data have is there at all (θ ≠ 0). Both must hold for
+    an effect to be named: a reference with a structural level θ₀ ≠ 0 of a hypothesis makes data with
+    none of it differ from the reference, but the verdict would then report a magnitude whose own
+    interval holds zero. 1.0 when the coefficients have no covariance (nothing to test against)."""
+    theta = np.asarray(fit.theta, dtype=float)[len(fit.theta) - tail:]
+    cov = np.asarray(fit.theta_cov, dtype=float)[len(fit.theta) - tail:, len(fit.theta) - tail:]
+    if not len(theta) or not np.any(cov):
+        return 1.0
+    rank = int(np.linalg.matrix_rank(cov))
+    if rank == 0:
+        return 1.0
+    wald = float(theta @ np.linalg.pinv(cov) @ theta)
+    return float(stats.chi2.sf(wald, rank))
+
+
 def collinearity(problem: Problem, h: Hypothesis, nonlinear, cache: dict | None = None) -> dict:
     """R² of each effect column regressed on the base columns over the weighted fit rows of every
     channel, and the base parameters most correlated with it. The base columns are zero outside the
@@ -212,6 +232,8 @@ class Candidate:
     #: ``shrink`` starts instead from the base fit, whose base parameters may already have absorbed
     #: part of an effect collinear with them. Always set by :func:`fit_hypothesis`.
     from_model: Evaluation | None = None
+    #: p-value of the effect's fitted level being zero (:func:`presence`); 1.0 when not tested.
+    presence_p: float = 1.0
 
     @property
     def name(self) -> str:
@@ -265,13 +287,17 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = plausible(h, best.theta)
     cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical, added_to_model=added,
-                     from_model=from_model)
+                     from_model=from_model, presence_p=presence(best, tail))
     if best.theta0 is not None and np.any(best.theta0 != 0):
         cand.notes.append("the model's own run already shows a level "
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")
     # The shrinkage's window-bootstrap interval is reported, not required: with the few held-out
     # windows of a short step (2–3 in a quick campaign) it is too unstable to gate on.
-    cand.significant = bool(p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK))
+    cand.significant = bool(p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK) and present(cand))
+    if p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK) and not present(cand):
+        cand.notes.append(f"differs from the reference run's level but is not there itself (level zero: "
+                          f"p = {cand.presence_p:.2g}; adding it to the model shrinks {from_model.affected} by "
+                          f"{100 * from_model.shrink_affected:.0f} %): not named")
     if not physical:
         cand.notes.append("fitted sign or size is physically impossible for this effect")
     if evaluation.removed <= 0 < evaluation.shrink_affected:
@@ -282,6 +308,14 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
                           + (", ".join(ident_check["correlated_with"]) or "the base columns together")
                           + ": separable only through the base model's uncertainty")
     return cand
+
+
+def present(cand: Candidate) -> bool:
+    """Whether the effect is there, not merely different from the reference run's level of it: its
+    fitted level is not zero (``presence_p`` < ALPHA) and adding it at that level to the model as
+    identified shrinks the held-out residual of its channel by at least MIN_SHRINK."""
+    return cand.presence_p < ALPHA and cand.from_model is not None \
+        and cand.from_model.shrink_affected >= MIN_SHRINK
 
 
 def level_z(problem: Problem, model: IdentificationResult, h: Hypothesis, nonlinear, lag: int,

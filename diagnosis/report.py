@@ -68,6 +68,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "ci": list(m.ci),
         "significant": c.significant,
         "p_value": c.p_value,
+        "presence_p_value": c.presence_p,
         "holdout_shrink": ev.shrink_affected,
         "holdout_shrink_ci": list(ev.shrink_affected_ci),
         "holdout_shrink_beyond_base_fit": c.shrink.shrink_affected,
@@ -142,12 +143,14 @@ def _which_table(gap: dict) -> str:
         f"<tr class='{'acc' if e['significant'] else ''}'><td>{e['rank']}</td><td>{html.escape(e['name'])}</td>"
         f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(unit_text(e['unit']))}</td>"
         f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
+        f"<td>{_fmt(e.get('presence_p_value'), '.2g')}</td>"
         f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} % [{_fmt(100 * e['holdout_shrink_ci'][0], '.1f')}, "
         f"{_fmt(100 * e['holdout_shrink_ci'][1], '.1f')}] ({html.escape(e['affected_channel'])})</td>"
         f"<td>{'yes' if e['significant'] else 'no'}</td>"
         f"<td>{'yes' if e['identifiability']['separable'] else 'no'}</td></tr>"
         for e in gap["effects"] if e["magnitude"] is not None)
-    return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th><th>p</th>"
+    return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th><th>p (beyond reference)</th>"
+            "<th>p (level zero)</th>"
             f"<th>held-out shrink [95 % CI] (channel)</th><th>significant</th><th>separable</th></tr>{rows}</table>")
 
 

@@ -86,9 +86,9 @@ def _stribeck(variant, significant, p_value=1e-3, shrink=0.3, v_s=0.02, removed=
     from types import SimpleNamespace as NS
 
     from qomni.diagnosis.evaluation import Evaluation
+    ev = Evaluation([], 100.0, 100.0 - removed, "steer_left/alpha_l", shrink, (0.0, 0.5))
     return NS(hypothesis=NS(name="stribeck", variant=variant), significant=significant, p_value=p_value,
-              physical=True, notes=[], fit=NS(nonlinear=v_s),
-              evaluation=Evaluation([], 100.0, 100.0 - removed, "steer_left/alpha_l", shrink, (0.0, 0.5)))
+              physical=True, notes=[], fit=NS(nonlinear=v_s), evaluation=ev, from_model=ev, presence_p=1e-6)
 
 
 def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():

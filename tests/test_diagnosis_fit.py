@@ -265,3 +265,41 @@ def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     assert plausible(INCLINE, np.array([0.0, math.sin(2e-3)]))
     assert plausible(INCLINE, np.array([0.8e-3, -0.8e-3]))        # 1.13 mrad
     assert not plausible(INCLINE, np.array([0.6e-3, -0.6e-3]))    # 0.85 mrad
+
+
+def _square_wave_case(level, seed):
+    rng = np.random.default_rng(seed)
+    ch = _channel("steer_left/alpha_l", rng, planted=0.0)
+    ch.phi = np.sign(np.sin(np.arange(N_ROWS) / 7.0)) * 3.0
+    ch.residual = level * ch.phi + rng.normal(size=N_ROWS)
+    fit_p, hold_p = _alternating_windows([ch])
+    h = Hypothesis("level", "", ("c",), lambda c, _: c.phi[:, None], magnitude=lambda t, cov, nl, sheet: None)
+    return fit_p, hold_p, h
+
+
+def test_an_effect_is_named_only_where_its_level_is_there_not_merely_unlike_the_references():
+    # The reference run holds −0.6 of the column (the model's structure leaves it there); data with
+    # none of it differ from the reference by 0.6, far beyond noise, but the effect is not in them.
+    fit_p, hold_p, h = _square_wave_case(0.0, 11)
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    absent = fitting.fit_hypothesis(fit_p, hold_p, MODEL, h, base, 1, None, {}, reference={None: np.array([-0.6])})
+    assert absent.p_value < 1e-6 and absent.evaluation.confirms(0.1)   # unlike the reference …
+    assert absent.fit.theta[0] == pytest.approx(0.0, abs=0.05)         # … at a level of zero
+    assert absent.presence_p > fitting.ALPHA and not absent.significant
+    assert any("not there itself" in n for n in absent.notes)
+    # The same difference from the reference, with the effect there: named.
+    fit_p, hold_p, h = _square_wave_case(0.6, 11)
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    there = fitting.fit_hypothesis(fit_p, hold_p, MODEL, h, base, 1, None, {}, reference={None: np.array([0.0])})
+    assert there.presence_p < 1e-6 and there.from_model.shrink_affected > 0.5 and there.significant
+
+
+def test_the_presence_test_is_calibrated_where_the_level_is_zero():
+    p = []
+    for seed in range(200):
+        rng = np.random.default_rng(1000 + seed)
+        ch = _channel("a", rng, planted=0.0)
+        fit = fitting.solve(_problem([ch]), MODEL, LEVEL, None, 1)
+        p.append(fitting.presence(fit, 1))
+    assert 0.02 <= np.mean(np.array(p) < 0.05) <= 0.09
+    assert np.median(p) == pytest.approx(0.5, abs=0.12)

@@ -81,6 +81,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     and the steering variant confirms on held-out data as well: the steering variant is then reported,
     with that test's significance. When it does not confirm, the wheel variant stays."""
     from ..evaluation import MIN_SHRINK   # the fitting machinery imports this package: import at use
+    from ..fit import present
 
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
@@ -93,7 +94,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
         if not wheels.significant:
             return
         if not steering.significant:
-            if not (steering.physical and steering.evaluation.confirms(MIN_SHRINK)):
+            if not (steering.physical and steering.evaluation.confirms(MIN_SHRINK) and present(steering)):
                 return
             steering.significant = True
             steering.notes.append(f"preferred over the wheel joints, whose level in the steps without "
@@ -110,7 +111,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     steering.significant = False
     steering.notes.append(f"the wheel joints' variant also explains the steps without steering motion "
                           f"(z = {z:.1f}); this one has no column there")
-    wheels.significant = wheels.physical and wheels.evaluation.confirms(MIN_SHRINK)
+    wheels.significant = wheels.physical and wheels.evaluation.confirms(MIN_SHRINK) and present(wheels)
     wheels.notes.append(f"preferred over the steering joints: its level in the steps without steering "
                         f"motion exceeds the reference run's by z = {z:.1f}; significance from the "
                         f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
