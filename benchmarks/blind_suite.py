@@ -96,12 +96,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 draw per effect, quick campaigns")
     ap.add_argument("--campaigns", choices=("quick", "full"), default=None,
-                    help="campaign length (default: quick with --quick, else full)")
-    ap.add_argument("--singles", type=int, default=None, help="draws per effect (default 5, 1 with --quick)")
+                    help="campaign length (default: the results file's, else quick with --quick, else full)")
+    ap.add_argument("--singles", type=int, default=None,
+                    help="draws per effect (default: the results file's, else 5, 1 with --quick)")
     ap.add_argument("--master-seed", type=int, default=None,
                     help="the suite's master seed (default: the results file's, else a new random one)")
-    ap.add_argument("--reference", choices=("twin", "ideal"), default="twin",
-                    help="diagnose against each case's own twin (default) or an ideal emulator's model")
+    ap.add_argument("--reference", choices=("twin", "ideal"), default=None,
+                    help="diagnose against each case's own twin (default, or the results file's) or an ideal "
+                    "emulator's model")
     ap.add_argument("--range-ends", action="store_true",
                     help="only the campaign at both ends of every effect's realistic range (quick campaigns)")
     ap.add_argument("--work", type=Path, default=Path("runs/blind_suite"), help="work directory")
@@ -124,13 +126,22 @@ def main(argv=None) -> int:
     master = args.master_seed if args.master_seed is not None else recorded.get("master_seed", secrets.randbits(31))
     if recorded and recorded.get("master_seed") != master:
         console.print(f"{results_path} holds the suite of master seed {recorded.get('master_seed')}; "
-                      f"use another --work for master seed {master}")
+                      f"use another --work for master seed {master}", markup=False)
         return 2
-    singles = args.singles or (1 if args.quick else 5)
-    todo = draw_cases(master, singles=singles, entries=args.effects)
-    campaigns = args.campaigns or ("quick" if args.quick else "full")
+    # A work directory holds one suite: what its results file records is the default, and a different
+    # campaign length, draw count or entry list would score other cases than those recorded there.
+    singles = args.singles or recorded.get("singles") or (1 if args.quick else 5)
+    campaigns = args.campaigns or ("quick" if args.quick else recorded.get("campaigns", "full"))
+    effects = args.effects if args.effects is not None else recorded.get("effects")
+    args.reference = args.reference or recorded.get("reference", "twin")
+    for key, value in (("campaigns", campaigns), ("singles", singles), ("effects", effects)):
+        if recorded and key in recorded and recorded[key] != value:
+            console.print(f"{results_path} holds a suite with {key} = {recorded[key]!r}, not {value!r}; "
+                          f"use another --work", markup=False)
+            return 2
+    todo = draw_cases(master, singles=singles, entries=effects)
     run = {"master_seed": master, "reference": args.reference, "campaigns": campaigns, "singles": singles,
-           "effects": args.effects}
+           "effects": effects}
     if args.recorded_only:
         todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
     console.print(f"{len(todo)} cases of master seed {master} in {args.work} ({campaigns} campaigns, "

@@ -111,3 +111,28 @@ class _OnlyNew:
         if case.name not in self.new:
             raise AssertionError(f"{case.name} ran again")
         return probe_case(case, work, reference, quick)
+
+
+def _benchmark_main():
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "blind_suite.py"
+    spec = importlib.util.spec_from_file_location("blind_suite_benchmark", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.main
+
+
+def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path, capsys):
+    from qomni.blind_suite import write_results
+    main = _benchmark_main()
+    run = {"master_seed": 2027, "reference": "twin", "campaigns": "quick", "singles": 1, "effects": None}
+    write_results([], tmp_path / "blind_suite.json", run)
+    # without options the recorded suite is rescored: its campaign length and draws, not the defaults
+    assert main(["--work", str(tmp_path), "--recorded-only"]) == 0
+    assert "of master seed 2027" in capsys.readouterr().out
+    assert read_run(tmp_path / "blind_suite.json") == run
+    for other in (["--campaigns", "full"], ["--singles", "5"], ["--effects", "payload"]):
+        assert main(["--work", str(tmp_path), "--recorded-only", *other]) == 2
+        assert "use another --work" in capsys.readouterr().out
+        assert read_run(tmp_path / "blind_suite.json") == run
