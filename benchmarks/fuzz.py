@@ -85,10 +85,12 @@ def main() -> None:
               f"(time {fuzzed / baseline:.2f}× the baseline's)")
         print(f"hub: {hub.frames} frames forwarded, {hub.dropped} dropped for full queues, "
               f"{hub.remote_dropped} remote requests not forwarded")
-        print(f"server error: {server.error!r}; physics steps from fuzzed SYNCs: {server.cycles}")
+        print(f"server error: {server.error!r}; frames that raised inside a node: "
+              f"{server.listener.internal_errors}; physics steps from fuzzed SYNCs: {server.cycles}")
         for node_id, answer in answers.items():
             print(f"node {node_id}: {answer}")
-        if server.error is not None or any(a.startswith("NO ANSWER") for a in answers.values()):
+        if server.error is not None or server.listener.internal_errors \
+                or any(a.startswith("NO ANSWER") for a in answers.values()):
             raise SystemExit("a node stopped answering")
 
 

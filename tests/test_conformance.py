@@ -105,6 +105,16 @@ def test_sdo_abort_codes_raw(master, server, request_, code):
     assert abort_code(sdo_raw(master, 1, upload(0x1000))) is None        # the server still answers
 
 
+@pytest.mark.parametrize("node_id", [1, 5])
+@pytest.mark.parametrize("command", [0x00, 0x60])                    # download / upload segment
+def test_a_segment_request_before_any_transfer_is_aborted_and_the_node_keeps_answering(master, server, node_id,
+                                                                                     command):
+    response = sdo_raw(master, node_id, bytes([command]) + bytes(7))
+    assert abort_code(response) == 0x05040001 and response[1:4] == bytes(3)   # no multiplexer named yet
+    for other in (1, 2, 3, 4, 5, 6):
+        assert abort_code(sdo_raw(master, other, upload(0x1000))) is None
+
+
 def test_sdo_expedited_and_segmented_transfers(master, server):
     drive = master.drive[1]
     # expedited without size indication: the object's own length counts

@@ -60,6 +60,13 @@ class GatedSdoServer(SdoServer):
                 self._buffer = None
             super().on_request(can_id, data, timestamp)
 
+    def abort(self, abort_code=0x08000000):
+        """Send an abort with the transfer's multiplexer; 0x0000:0 where no request has named one yet (a
+        segment request before any initiate)."""
+        if self._index is None:
+            self._index, self._subindex = 0, 0
+        super().abort(abort_code)
+
     def _on_block_frame(self, data) -> bool:
         """A frame during a block transfer; False if it ends the transfer and is a request of its own."""
         block = self.block

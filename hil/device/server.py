@@ -141,12 +141,20 @@ class DeviceListener(can.Listener):
     def __init__(self, network: canopen.Network, after_command=None):
         self.network = network
         self.after_command = after_command
+        #: Frames whose handling raised inside a node (a defect of this emulator, logged with the frame).
+        self.internal_errors = 0
 
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
         can_id = msg.arbitration_id
-        self.network.notify(can_id, msg.data, msg.timestamp)
+        try:
+            self.network.notify(can_id, msg.data, msg.timestamp)
+        except Exception:                                 # noqa: BLE001 - one frame must not silence the bus
+            # An exception here would end the notifier thread, and with it every node's reception: a
+            # real drive that cannot handle a frame drops it and keeps serving the others.
+            self.internal_errors += 1
+            logger.exception("frame 0x%03X %s raised inside a node; dropped", can_id, bytes(msg.data).hex())
         if self.after_command is not None and (can_id == 0 or 0x600 < can_id < 0x680):
             self.after_command()                   # NMT command or SDO request: may have disabled a drive
 
@@ -211,6 +219,7 @@ class VehicleServer:
         self._physics: threading.Thread | None = None
         self.error: BaseException | None = None
         self.network: canopen.Network | None = None
+        self.listener: DeviceListener | None = None
         self._watchdog_period = watchdog_period
         self._stop_event = threading.Event()
         self._watchdog: threading.Thread | None = None
@@ -235,7 +244,8 @@ class VehicleServer:
             self.injector.on_bus_off_recovered = self._bus_off_recovered
             bus = FaultyBus(bus, self.injector, own_bus=self._own_bus)
         network = canopen.Network(bus)
-        network.listeners = [DeviceListener(network, self._follow_drive_torques)]
+        self.listener = DeviceListener(network, self._follow_drive_torques)
+        network.listeners = [self.listener]
         network.NOTIFIER_CYCLE = 0.05      # short receive timeout: stop() returns quickly
         for node in self.nodes:
             network.add_node(node)
