@@ -12,7 +12,8 @@
                                                        # realistic range: completed, peak torque / limit
 
 The cases are drawn from a master seed (qomni.suite.cases), new for every new work directory and
-recorded in ``<work>/blind_suite.json`` with each case's draw. Prints top-1 accuracy, false positives and
+recorded in ``<work>/blind_suite.json`` with each case's draw (``blind_suite_ideal.json`` with
+``--reference ideal``: both reference modes can score the same recordings). Prints top-1 accuracy, false positives and
 held-out shrinkage per effect and rewrites the results file after every finished case; started again on
 the same work directory, the suite takes its master seed from the file and runs only the cases not in
 it. A case's campaign already in ``--work`` is re-used (its run directory holds ``identification.json``).
@@ -33,6 +34,10 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from qomni.blind_suite import draw_cases, probe_case, read_run, run_suite, write_results  # noqa: E402
+
+
+#: The results file of each reference mode in the work directory.
+RESULTS = {"twin": "blind_suite.json", "ideal": "blind_suite_ideal.json"}
 
 
 def dask_vs_local(todo, work: Path, quick: bool, workers, runner, console) -> int:
@@ -101,9 +106,9 @@ def main(argv=None) -> int:
                     help="draws per effect (default: the results file's, else 5, 1 with --quick)")
     ap.add_argument("--master-seed", type=int, default=None,
                     help="the suite's master seed (default: the results file's, else a new random one)")
-    ap.add_argument("--reference", choices=("twin", "ideal"), default=None,
-                    help="diagnose against each case's own twin (default, or the results file's) or an ideal "
-                    "emulator's model")
+    ap.add_argument("--reference", choices=("twin", "ideal"), default="twin",
+                    help="diagnose against each case's own twin (default) or an ideal emulator's model; each "
+                    "has its own results file in --work, so both can score the same recordings")
     ap.add_argument("--range-ends", action="store_true",
                     help="only the campaign at both ends of every effect's realistic range (quick campaigns)")
     ap.add_argument("--work", type=Path, default=Path("runs/blind_suite"), help="work directory")
@@ -121,11 +126,15 @@ def main(argv=None) -> int:
     console = Console() if sys.stdout.isatty() else Console(width=200)
     if args.range_ends:
         return range_ends(args.work / "range_ends", args.effects, console)
-    results_path = args.work / "blind_suite.json"
+    results_path = args.work / RESULTS[args.reference]
     recorded = read_run(results_path) if results_path.exists() else {}
-    master = args.master_seed if args.master_seed is not None else recorded.get("master_seed", secrets.randbits(31))
-    if recorded and recorded.get("master_seed") != master:
-        console.print(f"{results_path} holds the suite of master seed {recorded.get('master_seed')}; "
+    # The recordings in a work directory are one master seed's, whichever reference scores them.
+    seeds = {read_run(args.work / f).get("master_seed") for f in RESULTS.values() if (args.work / f).exists()}
+    seeds.discard(None)
+    master = args.master_seed if args.master_seed is not None else \
+        (min(seeds) if seeds else secrets.randbits(31))
+    if seeds - {master}:
+        console.print(f"{args.work} holds the suite of master seed {min(seeds - {master})}; "
                       f"use another --work for master seed {master}", markup=False)
         return 2
     # A work directory holds one suite: what its results file records is the default, and a different
@@ -133,8 +142,8 @@ def main(argv=None) -> int:
     singles = args.singles or recorded.get("singles") or (1 if args.quick else 5)
     campaigns = args.campaigns or ("quick" if args.quick else recorded.get("campaigns", "full"))
     effects = args.effects if args.effects is not None else recorded.get("effects")
-    args.reference = args.reference or recorded.get("reference", "twin")
-    for key, value in (("campaigns", campaigns), ("singles", singles), ("effects", effects)):
+    for key, value in (("campaigns", campaigns), ("singles", singles), ("effects", effects),
+                       ("reference", args.reference)):
         if recorded and key in recorded and recorded[key] != value:
             console.print(f"{results_path} holds a suite with {key} = {recorded[key]!r}, not {value!r}; "
                           f"use another --work", markup=False)

@@ -132,7 +132,11 @@ def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path,
     assert main(["--work", str(tmp_path), "--recorded-only"]) == 0
     assert "of master seed 2027" in capsys.readouterr().out
     assert read_run(tmp_path / "blind_suite.json") == run
-    for other in (["--campaigns", "full"], ["--singles", "5"], ["--effects", "payload"]):
+    for other in (["--campaigns", "full"], ["--singles", "5"], ["--effects", "payload"], ["--master-seed", "3"]):
         assert main(["--work", str(tmp_path), "--recorded-only", *other]) == 2
         assert "use another --work" in capsys.readouterr().out
         assert read_run(tmp_path / "blind_suite.json") == run
+    # the other reference scores the same recordings into its own file, with the same master seed
+    assert main(["--work", str(tmp_path), "--recorded-only", "--quick", "--reference", "ideal"]) == 0
+    assert read_run(tmp_path / "blind_suite_ideal.json") == {**run, "reference": "ideal"}
+    assert read_run(tmp_path / "blind_suite.json") == run
