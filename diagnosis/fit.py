@@ -100,11 +100,13 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
         blocks_b.append(target * problem.weights[i])
     if q and not any_effect:
         return None
-    prior_std = base_prior_std(model)
-    P = np.zeros((n_base, n_cols))
-    P[:, :n_base] = np.diag(1.0 / prior_std)
-    A = np.vstack(blocks_A + [P])
-    b = np.concatenate(blocks_b + [np.zeros(n_base)])
+    if problem.base_prior:
+        P = np.zeros((n_base, n_cols))
+        P[:, :n_base] = np.diag(1.0 / base_prior_std(model))
+        A = np.vstack(blocks_A + [P])
+        b = np.concatenate(blocks_b + [np.zeros(n_base)])
+    else:
+        A, b = np.vstack(blocks_A), np.concatenate(blocks_b)
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
     x, *_ = np.linalg.lstsq(A / scale, b, rcond=None)

@@ -26,6 +26,9 @@ class Problem:
     holdout_rows: list[np.ndarray]   # per channel, bool (n_c,) (may refer to other channels)
     weights: np.ndarray              # per channel, 1/(σ_c √L)
     window_id: list[np.ndarray]      # per channel, int window index of each row
+    #: Whether the base parameters are held by their prior (σ = PRIOR_STD_FACTOR·σ_model) or free: free
+    #: where the model was identified on these very rows (:func:`.fit.solve`).
+    base_prior: bool = True
 
 
 def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
@@ -40,11 +43,11 @@ def channel_lag(ch: ChannelData, lag: int) -> int:
 
 
 def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
-                 window: float = WINDOW) -> tuple[Problem, Problem]:
+                 window: float = WINDOW, base_prior: bool = True) -> tuple[Problem, Problem]:
     """The fitting problem and the held-out problem.
 
     Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
-    row of ``channels`` is fitted and ``holdout`` is evaluated.
+    row of ``channels`` is fitted and ``holdout`` is evaluated. ``base_prior``: :attr:`Problem.base_prior`.
     """
     weights = []
     fit_rows, hold_rows, wins = [], [], []
@@ -64,13 +67,14 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
         weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
     weights = np.array(weights)
-    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins)
+    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins, base_prior)
     if holdout is None:
-        return fit, Problem(channels, hold_rows, hold_rows, weights, wins)
+        return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior)
     by_name = {c.name: i for i, c in enumerate(channels)}
     h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
     h_rows = [c.fitted.copy() for c in holdout]
-    return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout])
+    return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout],
+                        base_prior)
 
 
 def restrict(problem: Problem, keep) -> Problem:
@@ -78,7 +82,7 @@ def restrict(problem: Problem, keep) -> Problem:
     idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
     return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
                    [problem.holdout_rows[i] for i in idx], problem.weights[idx],
-                   [problem.window_id[i] for i in idx])
+                   [problem.window_id[i] for i in idx], problem.base_prior)
 
 
 @dataclass

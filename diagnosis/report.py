@@ -12,7 +12,7 @@ from qomni.ident.rundir import write_json
 
 from .diagnose import Diagnosis
 from .figures import unit_text
-from .fit import Candidate
+from .fit import PRIOR_STD_FACTOR, Candidate
 
 GAP_JSON = "gap.json"
 REPORT_HTML = "report.html"
@@ -112,6 +112,9 @@ def gap_dict(d: Diagnosis) -> dict:
         "data": d.data_source,
         "data_run": d.data_run,
         "reference": d.reference,
+        "model_identified_on_data": d.model_from_data,
+        "base_parameters": "free (the model was identified on these data)" if d.model_from_data
+        else f"held within their prior ({PRIOR_STD_FACTOR:g} sigma of the model's)",
         "base_parameter_shift": d.base_delta_p,
         "model_holdout_rms": d.model_holdout_rms,
         "base_fit_holdout_rms": d.holdout_rms,

@@ -19,7 +19,7 @@ from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correl
                              identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
-                     b_w_source, load_identification, load_run, read_json, require_complete, write_json)
+                     b_w_source, file_sha256, load_identification, load_run, read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .least_squares import IdentifiabilityError
@@ -84,7 +84,8 @@ def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     data["velocity_threshold"] = VELOCITY_THRESHOLD
     data["coulomb_velocity_cutoff"] = {"value": COULOMB_VELOCITY_CUTOFF, "unit": "rad/s"}
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
-    data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS)}
+    data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS),
+                   "signals_sha256": file_sha256(run_dir / SIGNALS)}
     write_json(run_dir / IDENTIFICATION_JSON, data)
     return result
 

@@ -5,6 +5,7 @@ A run directory is the interface between recording (the campaign, ``qomni decode
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -38,6 +39,21 @@ SINGLE_AXIS_FILES = (SINGLE_AXIS_DIR, SINGLE_AXIS_JSON)
 class RunDirectoryError(ValueError):
     """A run directory is missing a file or a campaign step, or a file of it is invalid; the message names
     the file and the key."""
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (identifies the recording a model was identified from).
+
+    Raises:
+        RunDirectoryError: the file does not exist."""
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                digest.update(chunk)
+    except FileNotFoundError:
+        raise RunDirectoryError(f"{path} does not exist") from None
+    return digest.hexdigest()
 
 
 def read_json(path: Path) -> dict:

@@ -138,3 +138,19 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     twin_meta = json.loads((out / "twin_reference" / "metadata.json").read_text())
     data_meta = json.loads((run / "metadata.json").read_text())
     assert twin_meta["settings"] == data_meta["settings"] and twin_meta["status"] == "complete"
+
+
+def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_own_twin(suite):
+    """A torque-constant error on one drive biases the same-run identification; with the model's base
+    parameters free (it was identified on these data) the diagnosis against its twin names the drive."""
+    work, _ = suite
+    run, out = work / "torque", work / "torque" / "twin_gap"
+    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
+                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
+                             "--no-simulate"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    gap = json.loads((out / "gap.json").read_text())
+    assert gap["model_identified_on_data"] is True
+    assert gap["verdict"] == "unmodelled effect: torque_constant_error (drive fl)", gap["verdict"]
+    first = gap["accepted"][0]
+    assert first["ci"][0] <= first["magnitude"] <= first["ci"][1] and first["ci"][1] < 0   # 0.88: a weaker drive

@@ -303,3 +303,38 @@ def test_the_presence_test_is_calibrated_where_the_level_is_zero():
         p.append(fitting.presence(fit, 1))
     assert 0.02 <= np.mean(np.array(p) < 0.05) <= 0.09
     assert np.median(p) == pytest.approx(0.5, abs=0.12)
+
+
+def test_a_model_identified_on_the_data_leaves_its_base_parameters_free():
+    # The identification absorbed the part of the effect its base columns span (φ = tanh + 0.3·base₀):
+    # the residual is the effect minus that part. Held by a tight prior at the identified values, the
+    # base cannot give it back and the effect's level comes out low; free, the nested fit recovers it.
+    rng = np.random.default_rng(21)
+    ch = _channel("a", rng)
+    ch.residual = 0.7 * (ch.phi - 0.3 * ch.base[:, 0]) + 0.05 * rng.normal(size=N_ROWS)
+    held = fitting.solve(_problem([ch]), MODEL, LEVEL, None, 1)
+    free_problem = _problem([ch])
+    free_problem.base_prior = False
+    free = fitting.solve(free_problem, MODEL, LEVEL, None, 1)
+    assert free.theta[0] == pytest.approx(0.7, abs=0.02)
+    assert free.delta_p[0] == pytest.approx(-0.21, abs=0.02)
+    assert abs(held.theta[0] - 0.7) > 0.05 and abs(held.delta_p[0]) < 1e-3
+
+
+def test_a_model_is_known_to_come_from_the_data_by_the_signals_it_was_identified_on(tmp_path):
+    import json
+
+    from qomni.diagnosis.diagnose import identified_on
+    from qomni.ident.rundir import file_sha256
+    run, other = tmp_path / "run", tmp_path / "other"
+    run.mkdir(), other.mkdir()
+    (run / "signals.csv").write_text("t,x\n0,1\n")
+    (other / "signals.csv").write_text("t,x\n0,2\n")
+    model = tmp_path / "elsewhere.json"
+    model.write_text(json.dumps({"run": {"signals_sha256": file_sha256(run / "signals.csv")}}))
+    assert identified_on(model, run) and not identified_on(model, other)
+    (run / "signals.csv").write_text("t,x\n0,1.5\n")                    # the recording changed since
+    assert not identified_on(model, run)
+    legacy = run / "identification.json"                               # written before the hash was kept
+    legacy.write_text(json.dumps({"run": {"status": "complete"}}))
+    assert identified_on(legacy, run) and identified_on(run, run) and not identified_on(legacy, other)
