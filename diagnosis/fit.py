@@ -232,7 +232,9 @@ class Candidate:
     #: accepted before this one) and the same model with the effect added at its fitted level, in the
     #: channel ``shrink`` is evaluated in: the residual before and after adding the effect.
     #: ``shrink`` starts instead from the base fit, whose base parameters may already have absorbed
-    #: part of an effect collinear with them. Always set by :func:`fit_hypothesis`.
+    #: part of an effect collinear with them. Where the base parameters are free (a model identified on
+    #: these data) the base fit is the re-identified model, and this is ``shrink``. Always set by
+    #: :func:`fit_hypothesis`.
     from_model: Evaluation | None = None
     #: p-value of the effect's fitted level being zero (:func:`presence`); 1.0 when not tested.
     presence_p: float = 1.0
@@ -284,7 +286,12 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     evaluation = evaluate(hold_problem, test_base, best, cache)
     added = None if test_base is base else evaluate(hold_problem, base, best, cache)
     tail = len(h.parameters) if hold_tail is None else hold_tail
-    from_model = added_to_identified(hold_problem, best, tail, (added or evaluation).affected, cache)
+    # With the base parameters free (a model identified on these data) the base fit is the model
+    # re-identified on them, and adding the effect re-fits the parameters too: the shrink is the base
+    # fit's. With the parameters held as identified, an effect they absorbed in part would be added on
+    # top of what they already hold.
+    from_model = added_to_identified(hold_problem, best, tail, (added or evaluation).affected, cache) \
+        if fit_problem.base_prior else (added or evaluation)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = plausible(h, best.theta)
