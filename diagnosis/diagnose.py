@@ -180,7 +180,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = cand.physical  # the joint hypothesis checks the added effect's part
-        significant = cand.p_value < fitting.ALPHA_MORE and cand.presence_p < fitting.ALPHA and physical \
+        significant = cand.p_value < fitting.ALPHA_MORE and fitting.present(cand) and physical \
             and _confirms_further(cand.evaluation, floor)
         if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
             sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),

@@ -302,8 +302,9 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")
     # The shrinkage's window-bootstrap interval is reported, not required: with the few held-out
     # windows of a short step (2–3 in a quick campaign) it is too unstable to gate on.
-    cand.significant = bool(p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK) and present(cand))
-    if p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK) and not present(cand):
+    beyond_reference = bool(p_value < ALPHA and physical and evaluation.confirms(MIN_SHRINK))
+    cand.significant = beyond_reference and present(cand)
+    if beyond_reference and not present(cand):
         cand.notes.append(f"differs from the reference run's level but is not there itself (its level is "
                           f"zero: p = {cand.presence_p:.2g}): not named")
     if not physical:
