@@ -127,10 +127,10 @@ def main(argv=None) -> int:
     if args.range_ends:
         return range_ends(args.work / "range_ends", args.effects, console)
     results_path = args.work / RESULTS[args.reference]
-    recorded = read_run(results_path) if results_path.exists() else {}
+    runs = {mode: read_run(args.work / f) for mode, f in RESULTS.items() if (args.work / f).exists()}
+    recorded = runs.get(args.reference, {})
     # The recordings in a work directory are one master seed's, whichever reference scores them.
-    seeds = {read_run(args.work / f).get("master_seed") for f in RESULTS.values() if (args.work / f).exists()}
-    seeds.discard(None)
+    seeds = {r["master_seed"] for r in runs.values() if "master_seed" in r}
     master = args.master_seed if args.master_seed is not None else \
         (min(seeds) if seeds else secrets.randbits(31))
     if seeds - {master}:
