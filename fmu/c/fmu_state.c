@@ -24,17 +24,27 @@ typedef struct {
     char token[TOKEN_SIZE];
 } FmuSerialHeader;
 
+/* The state `state` to write into (as function `who`): itself when it is one of this FMU's, a new one when
+ * it is NULL; anything else, or no memory, is an error. */
+static FmuStatus writable_state(FmuInstance *instance, void *state, const char *who, FmuState **out) {
+    FmuState *st = state;
+    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "%s: not a state of this FMU", who);
+    if (!st) {
+        st = fmu_allocate(instance, sizeof *st);
+        if (!st) return fmu_error(instance, "%s: out of memory", who);
+    }
+    st->magic = STATE_MAGIC;
+    *out = st;
+    return FMU_OK;
+}
+
 FmuStatus fmu_get_state(FmuInstance *instance, void **state) {
     FmuStatus s = fmu_require_mode(instance, FMU_MODE_ANY, "GetFMUState");
     if (s != FMU_OK) return s;
     if (!state) return fmu_error(instance, "GetFMUState: state pointer is NULL");
-    FmuState *st = *state;
-    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "GetFMUState: not a state of this FMU");
-    if (!st) {
-        st = fmu_allocate(instance, sizeof *st);
-        if (!st) return fmu_error(instance, "GetFMUState: out of memory");
-    }
-    st->magic = STATE_MAGIC;
+    FmuState *st;
+    s = writable_state(instance, *state, "GetFMUState", &st);
+    if (s != FMU_OK) return s;
     st->mode = instance->mode;
     st->values = instance->values;
     *state = st;
@@ -100,13 +110,9 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], s
     if (header.mode != FMU_MODE_INSTANTIATED && header.mode != FMU_MODE_INITIALIZATION &&
         header.mode != FMU_MODE_STEP && header.mode != FMU_MODE_TERMINATED)
         return fmu_error(instance, "DeserializeFMUState: corrupt state (mode %u)", (unsigned)header.mode);
-    FmuState *st = *state;
-    if (st && st->magic != STATE_MAGIC) return fmu_error(instance, "DeserializeFMUState: not a state of this FMU");
-    if (!st) {
-        st = fmu_allocate(instance, sizeof *st);
-        if (!st) return fmu_error(instance, "DeserializeFMUState: out of memory");
-    }
-    st->magic = STATE_MAGIC;
+    FmuState *st;
+    FmuStatus s = writable_state(instance, *state, "DeserializeFMUState", &st);
+    if (s != FMU_OK) return s;
     st->mode = (FmuMode)header.mode;
     memcpy(&st->values, buffer + sizeof header, sizeof st->values);
     *state = st;
