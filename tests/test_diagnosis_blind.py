@@ -122,17 +122,23 @@ def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
     assert not (tmp_path / "d").exists()
 
 
+def _diagnose_against_own_twin(run, out) -> dict:
+    """``qomni diagnose`` of a run against the twin of the model identified on it (the CLI runs the twin's
+    campaign into ``out``); its gap.json."""
+    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
+                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
+                             "--no-simulate"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return json.loads((out / "gap.json").read_text())
+
+
 @pytest.mark.slow
 def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_not_there(suite):
     """The real user's mode: no ideal reference, only the run, the model identified from it and the model's
     digital twin, whose campaign (same settings) the CLI runs and keeps next to the report."""
     work, _ = suite
     run, out = work / "ideal", work / "ideal" / "twin_gap"
-    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
-                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
-                             "--no-simulate"], capture_output=True, text=True)
-    assert result.returncode == 0, result.stdout + result.stderr
-    gap = json.loads((out / "gap.json").read_text())
+    gap = _diagnose_against_own_twin(run, out)
     assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
     assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
     twin_meta = json.loads((out / "twin_reference" / "metadata.json").read_text())
@@ -140,16 +146,12 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     assert twin_meta["settings"] == data_meta["settings"] and twin_meta["status"] == "complete"
 
 
+@pytest.mark.slow
 def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_own_twin(suite):
     """A torque-constant error on one drive biases the same-run identification; with the model's base
     parameters free (it was identified on these data) the diagnosis against its twin names the drive."""
     work, _ = suite
-    run, out = work / "torque", work / "torque" / "twin_gap"
-    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
-                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
-                             "--no-simulate"], capture_output=True, text=True)
-    assert result.returncode == 0, result.stdout + result.stderr
-    gap = json.loads((out / "gap.json").read_text())
+    gap = _diagnose_against_own_twin(work / "torque", work / "torque" / "twin_gap")
     assert gap["model_identified_on_data"] is True
     assert gap["verdict"] == "unmodelled effect: torque_constant_error (drive fl)", gap["verdict"]
     first = gap["accepted"][0]
