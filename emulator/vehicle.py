@@ -109,6 +109,10 @@ class Emulator:
         for _ in range(round(SETTLE_TIME / time_step)):
             self._physics_step()
         self._steps = 0
+        self._sensed_joints = [*self._plant.encoder_joints, self._steer[0], self._steer[2]]
+        self._angles_now = None
+        self._read_sensed_joints()
+        self._angles_before = self._angles_now
         self._position_history.clear()
         self._position_history.append(self._encoder_positions())
 
@@ -198,6 +202,7 @@ class Emulator:
         """Advance the physics by ``duration`` s (rounded to whole physics steps)."""
         for _ in range(round(duration / self.time_step)):
             self._physics_step()
+            self._read_sensed_joints()
             self._position_history.append(self._encoder_positions())
 
     def _physics_step(self) -> None:
@@ -226,9 +231,26 @@ class Emulator:
         self._pb.stepSimulation()
         self._steps += 1
 
+    def _read_sensed_joints(self) -> None:
+        """Advance the sensed joints' angles (encoder joints, then the fl and fr steering joints), rad."""
+        self._angles_before = self._angles_now
+        self._angles_now = np.array([s[0] for s in self._pb.getJointStates(self.body, self._sensed_joints)])
+
+    def _sampled_angles(self) -> np.ndarray:
+        """The sensed joints' angles at the sampling instant of the continuous motion, rad.
+
+        PyBullet integrates semi-implicitly (v ← v + h a, then q ← q + h v): over steps of constant
+        acceleration its q_n runs (h/2)(v_n − v_0) ahead of the continuous motion its step-wise forces
+        produce, and the mean of the last two steps' angles, (q_n + q_{n−1})/2 = q_n − (h/2) v_n, is that
+        motion at t_n up to a constant. A sensor of a real vehicle samples the motion at t_n; reading q_n
+        would make the torque appear to act h/2 early (a torque lag of +0.5 ms at h = 1 ms,
+        docs/conventions.md, Torque timing).
+        """
+        return 0.5 * (self._angles_now + self._angles_before)
+
     def _wheel_angles(self) -> np.ndarray:
         """Angles the motor encoders see, wheel side (the wheels, or the motor rotors behind a gear)."""
-        return np.array([s[0] for s in self._pb.getJointStates(self.body, self._plant.encoder_joints)])
+        return self._sampled_angles()[:len(self._plant.encoder_joints)]
 
     def _encoder_positions(self) -> np.ndarray:
         drive = self.description.drive
@@ -248,14 +270,11 @@ class Emulator:
             torque = effect.reported_torque(torque)
         torque = torque + self._rng.normal(0.0, noise.torque_measurement, 4)
         full = 2 ** drive.steering_sensor_bits
-        alpha = self._steering_angles()[[0, 2]]
+        alpha = self._sampled_angles()[-2:]
         counts = np.round(alpha / (2 * math.pi) * full
                           + self._rng.normal(0.0, noise.steering_sensor_lsb, 2))
         return SensorReading(time=self.time, motor_position=position.copy(), motor_velocity=velocity,
                              motor_torque=torque, steering_position=counts.astype(np.int64) % full)
-
-    def _steering_angles(self) -> np.ndarray:
-        return np.array([s[0] for s in self._pb.getJointStates(self.body, self._steer)])
 
     # -- truth (never on the bus) --------------------------------------------------------------
     def true_state(self) -> TrueState:

@@ -320,8 +320,9 @@ def test_backlash_motor_crosses_the_gap_before_the_wheel():
                 emu.set_motor_torques([u, 0, 0, 0])
                 emu.step(0.2)
                 reading, truth = emu.read_sensors(), emu.true_state()
+                sampled = truth.beta[0] - 0.5 * emu.time_step * truth.beta_dot[0]   # at the SYNC instant
                 diffs.append(reading.motor_position[0] * 2 * math.pi / DR.encoder_increments / DR.i_G
-                             - truth.beta[0])
+                             - sampled)
         lead[name] = np.array(diffs)
     assert np.max(np.abs(lead["rigid"])) < 1e-4
     assert lead["backlash"] == pytest.approx([gap / 2, -gap / 2, gap / 2], abs=0.15 * gap)

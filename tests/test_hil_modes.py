@@ -276,13 +276,15 @@ def test_profile_position_buffered_and_relative_set_points(master, unsupervised_
 
 
 def test_profile_position_and_homing_on_the_pybullet_vehicle(channel, master):
-    """The emulated vehicle standing on its wheels, default gains: PP 3 motor revolutions at 2 rev/s and
-    10 rev/s² ends near the trapezoid's 1.7 s on target; homing method 34 then completes at the home
-    offset (docs/drive_modes.md quotes these numbers)."""
+    """The emulated vehicle standing on its wheels, K_p = 20 (the default 24 leaves the velocity loop
+    oscillating on this load, docs/drive_modes.md): PP 3 motor revolutions at 2 rev/s and 10 rev/s² ends
+    near the trapezoid's 1.7 s on target; homing method 34 then completes at the home offset
+    (docs/drive_modes.md quotes these numbers)."""
     from qomni.emulator.vehicle import Emulator
 
     with Emulator() as emulator, VehicleServer(emulator, f"virtual:{channel}", sync_timeout=None):
         node = master.drive[1]
+        node.sdo[0x60F9][1].raw = 20
         frame = lambda cw: (0x201, struct.pack("<Hh", cw, 0))            # noqa: E731
         node.sdo[0x6081].raw, node.sdo[0x6083].raw, node.sdo[0x6084].raw = 2 * REV, 10 * REV, 10 * REV
         node.sdo[0x607A].raw = 3 * REV
