@@ -10,9 +10,10 @@ The campaign (section 6.2) runs four simple movements, in this order:
 Each excited coordinate is a rest-to-rest finite Fourier series designed by
 :func:`qomni.ident.fourier.design_fourier_trajectory` (the generic design lives in :mod:`qomni.ident.fourier`).
 
-The validation movement (:func:`lane_change`) is a mode-2 lane change: a symmetric sin² speed profile
-ẋ_ch(t) and an antisymmetric S-shaped virtual steering angle α_v(t); its amplitude is solved (brentq)
-so the chassis moves sideways by one lane width and ends with the original heading.
+The validation movement (:func:`lane_change`) is a mode-2 lane change (by default of the campaign a
+double one, out and back): a symmetric sin² speed profile ẋ_ch(t) and S-shaped virtual steering angles
+α_v along the way; the amplitude is solved (brentq) so the chassis moves sideways by one lane width and
+ends each change with the original heading.
 
 All quantities SI: m, rad, s.
 """
@@ -249,26 +250,39 @@ def lane_change(
     duration: float = 12.0,
     distance: float = 6.0,
     lane_width: float = 1.5,
+    changes: int = 1,
     alpha_v_max: float = ALPHA_MAX_DEFAULT,
+    alpha_dot_max: float | None = None,
+    alpha_ddot_max: float | None = None,
     x_dot_max: float | None = None,
     x_ddot_max: float | None = None,
 ) -> ExcitationStep:
-    """Mode-2 lane change for validation: x_ch(t) and α_v(t), rest to rest, α_v(0) = α_v(T) = 0.
+    """Mode-2 lane change(s) for validation: x_ch(t) and α_v(t), rest to rest, α_v(0) = α_v(T) = 0.
 
-    With τ = t/T:
-      ẋ_ch = v̂ sin²(πτ), v̂ = 2·distance/T   (symmetric about T/2, ẋ = ẍ = 0 at the ends);
-      α_v  = A (½ sin 2πτ − ¼ sin 4πτ) = A sin(2πτ) sin²(πτ)   (antisymmetric: heading returns to 0;
-             α_v, α̇_v, α̈_v = 0 at the ends).
-    A is found by brentq so that the world lateral displacement is ``lane_width``.
+    With τ = t/T and u = x_ch/distance the share of the way travelled:
+      ẋ_ch = v̂ sin²(πτ), v̂ = 2·distance/T   (ẋ = ẍ = 0 at the ends);
+      α_v  = A·S(u): ``changes`` equal lane changes along the way, alternately to one side and back
+             (1: a lane change; 2: a double lane change that returns to its lane). Each change is
+             ±s(v) = ±(½ sin 2πv − ¼ sin 4πv) over its share v ∈ [0, 1] of the way: s, s′, s″ vanish
+             at both ends (C² joints) and s(1 − v) = −s(v).
+    The steering is a function of the way, not of time: the heading rate per metre is tan(α_v)/(l/2),
+    so each change returns the heading exactly to 0 and moves the chassis sideways by the same amount
+    whatever the speed profile. A is found by brentq so that the largest sideways displacement is
+    ``lane_width``. More changes over the same way steer faster: a single slow lane change keeps
+    |α̇_v| below the steering's stiction threshold and leaves its friction untested.
 
     Parameters
     ----------
     l : float
         Distance between front and rear steering axes (m).
     duration, distance, lane_width : float
-        T (s), travelled chassis-frame distance x_ch(T) (m), sideways displacement (m).
+        T (s), travelled chassis-frame distance x_ch(T) (m), largest sideways displacement (m).
+    changes : int
+        Number of lane changes (≥ 1).
     alpha_v_max : float
         Admissible |α_v| (rad).
+    alpha_dot_max, alpha_ddot_max : float, optional
+        Admissible |α̇_v| (rad/s), |α̈_v| (rad/s²); not checked if None.
     x_dot_max, x_ddot_max : float, optional
         Admissible |ẋ_ch| (m/s), |ẍ_ch| (m/s²); not checked if None.
 
@@ -280,10 +294,14 @@ def lane_change(
     Raises
     ------
     ValueError
-        If the speed limits are exceeded or the lane width is not reachable with |α_v| ≤ alpha_v_max.
+        If a limit is exceeded, ``changes`` < 1, or the lane width is not reachable with
+        |α_v| ≤ alpha_v_max.
     """
     if duration <= 0 or distance <= 0 or l <= 0:
         raise ValueError("duration, distance and l must be > 0")
+    if int(changes) != changes or changes < 1:
+        raise ValueError(f"changes must be an integer >= 1, got {changes}")
+    n = int(changes)
     v_hat = 2.0 * distance / duration
     if x_dot_max is not None and v_hat > x_dot_max:
         raise ValueError(f"peak speed {v_hat:.3g} m/s exceeds x_dot_max = {x_dot_max}")
@@ -298,11 +316,22 @@ def lane_change(
         ddx = distance * two_pi * np.sin(two_pi * tau)
         return x, dx, ddx
 
+    def shape(u):
+        """S(u), S′(u), S″(u) on the share u ∈ [0, 1] of the way."""
+        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        k = np.minimum(np.floor(u * n), n - 1)
+        v = u * n - k
+        sign = np.where(k % 2 == 0, 1.0, -1.0)
+        s = 0.5 * np.sin(two_pi * v) - 0.25 * np.sin(2 * two_pi * v)
+        ds = 0.5 * two_pi * (np.cos(two_pi * v) - np.cos(2 * two_pi * v))
+        dds = 0.5 * two_pi**2 * (-np.sin(two_pi * v) + 2.0 * np.sin(2 * two_pi * v))
+        return sign * s, sign * ds * n, sign * dds * n * n
+
     def s_func(tau):
-        s = 0.5 * np.sin(two_pi * tau) - 0.25 * np.sin(2 * two_pi * tau)
-        ds = 0.5 * two_pi * (np.cos(two_pi * tau) - np.cos(2 * two_pi * tau))
-        dds = 0.5 * two_pi**2 * (-np.sin(two_pi * tau) + 2.0 * np.sin(2 * two_pi * tau))
-        return s, ds, dds
+        """S(x(τ)/d) and its first two derivatives with respect to τ."""
+        x, dx, ddx = x_func(tau)
+        s, ds, dds = shape(x / distance)
+        return s, ds * dx / distance, dds * (dx / distance) ** 2 + ds * ddx / distance
 
     tau = np.linspace(0.0, 1.0, 4001)
     t = tau * duration
@@ -311,7 +340,7 @@ def lane_change(
     s_peak = float(np.max(np.abs(s)))
 
     def lateral(amp: float) -> float:
-        return float(mode2_path(t, xd, amp * s, l)[1][-1]) - lane_width
+        return float(np.max(np.abs(mode2_path(t, xd, amp * s, l)[1]))) - lane_width
 
     # Lateral offset grows with A until the heading approaches π/2; bracket the first crossing.
     amp_max = min(alpha_v_max, 0.999 * math.pi / 2) / s_peak
@@ -321,7 +350,7 @@ def lane_change(
     if above.size == 0:
         raise ValueError(
             f"lane width {lane_width} m not reachable with |alpha_v| <= {alpha_v_max:.3g} rad over "
-            f"{distance} m; increase distance or alpha_v_max"
+            f"{distance} m in {n} change(s); increase distance or alpha_v_max"
         )
     i = int(above[0])
     if vals[i] == 0.0:
@@ -333,6 +362,12 @@ def lane_change(
         s_, ds_, dds_ = s_func(tau)
         return amp * s_, amp * ds_, amp * dds_
 
+    _, ds_, dds_ = av_func(tau)
+    for name, peak, limit in (("alpha_dot", np.max(np.abs(ds_)) / duration, alpha_dot_max),
+                              ("alpha_ddot", np.max(np.abs(dds_)) / duration**2, alpha_ddot_max)):
+        if limit is not None and peak > limit:
+            raise ValueError(f"lane change: peak |{name}_v| {peak:.3g} exceeds {name}_max = {limit} "
+                             f"({n} change(s) of {lane_width} m over {distance} m in {duration} s)")
     return ExcitationStep(
         "lane_change",
         2,

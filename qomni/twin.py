@@ -121,7 +121,9 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
 
     data_dir, cache = Path(data_dir), Path(cache)
     meta = read_json(data_dir / METADATA)
-    settings = CampaignSettings(**meta.get("settings", {}))
+    recorded = meta.get("settings", {})
+    # A run whose metadata does not name its number of lane changes drove a single one.
+    settings = CampaignSettings(**{"lane_changes": 1, **recorded})
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     result = load_identification(identification)

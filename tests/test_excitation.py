@@ -120,6 +120,30 @@ def test_lane_change():
         ex.lane_change(l=L, duration=3.0, distance=1.0, lane_width=5.0)
 
 
+def test_a_double_lane_change_returns_to_its_lane_and_steers_above_stiction():
+    """Two changes along the way: out by the lane width and back, heading 0 at the end; over the same way
+    the steering moves faster than the single change's and |α̇_v| stays above 0.2 rad/s for a real share."""
+    kw = dict(l=L, duration=12.0, distance=4.5, lane_width=0.25, alpha_v_max=0.6, alpha_dot_max=2.5,
+              alpha_ddot_max=10.0)
+    t = np.linspace(0.0, 12.0, 12001)
+    double, single = (ex.lane_change(changes=n, **kw).evaluate(t) for n in (2, 1))
+    av, avd, avdd = double["alpha_v"]
+    x, xd, _ = double["x_ch"]
+    for v in (av[0], av[-1], avd[0], avd[-1], avdd[0], avdd[-1]):
+        assert abs(v) < 1e-9
+    dt = t[1] - t[0]
+    assert np.allclose(np.gradient(av, dt, edge_order=2), avd, atol=1e-4)
+    # C² where the changes join (α̈ = 0 there, the jerk changes sign): one central difference off by dt·jerk
+    assert np.allclose(np.gradient(avd, dt, edge_order=2), avdd, atol=5e-3)
+    _, y_w, gamma = ex.mode2_path(t, xd, av, L)
+    assert abs(np.max(np.abs(y_w)) - 0.25) < 1e-6 and abs(y_w[-1]) < 1e-3 and abs(gamma[-1]) < 1e-6
+    assert np.mean(np.abs(avd) > 0.2) >= 0.35 > np.mean(np.abs(single["alpha_v"][1]) > 0.2)
+    with pytest.raises(ValueError, match="alpha_dot"):
+        ex.lane_change(**{**kw, "alpha_dot_max": 0.5}, changes=2)
+    with pytest.raises(ValueError, match="changes"):
+        ex.lane_change(**kw, changes=0)
+
+
 def test_occupied_rectangle():
     length, width = ex.occupied_rectangle(np.array([0.0, 0.7, -1.1, 0.2]), L, B, A)
     assert np.isclose(length, L + 2.2) and np.isclose(width, math.hypot(L, B) + 2 * A)

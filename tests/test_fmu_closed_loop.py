@@ -18,7 +18,8 @@ pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 SHEET = DataSheet.load()
 SHORT = CampaignSettings.quick(steer_duration=2.0, straight_duration=2.5, rotation_duration=2.5,
-                               lane_change_duration=5.0, lane_distance=1.8, lane_width=0.4, steer_period=2.0,
+                               lane_change_duration=5.0, lane_distance=1.8, lane_width=0.15, lane_changes=1,
+                               steer_period=2.0,
                                chassis_period=2.5, align_duration=1.0, rest_duration=0.2)
 
 
