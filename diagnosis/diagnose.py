@@ -129,6 +129,8 @@ class Diagnosis:
     #: whether the model was identified on the diagnosed run itself (its base parameters are then free
     #: in every fit, :attr:`qomni.diagnosis.problem.Problem.base_prior`)
     model_from_data: bool = False
+    #: accepted effect's label → the candidates that explain the data as well (:func:`equivalents`)
+    equivalent: dict = field(default_factory=dict)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -285,8 +287,12 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                     and (ch.kind != "rolling" or _removed_rms(cand.evaluation, ch.name)
                          >= ROLLING_RELEVANT_RATE * float(np.ptp(ch.time))):
                 unexplained.append(cand)
+    equivalent = equivalents(candidates, accepted)
     if accepted:
-        verdict = "unmodelled effect: " + ", ".join(c.hypothesis.label for c in accepted)
+        verdict = "unmodelled effect: " + ", ".join(
+            c.hypothesis.label + "".join(f" (or, as well: {o.hypothesis.label})"
+                                         for o in equivalent.get(c.hypothesis.label, []))
+            for c in accepted)
     elif unexplained:
         verdict = VERDICT_UNEXPLAINED + " in " + ", ".join(c.hypothesis.variant for c in unexplained)
     else:
@@ -313,7 +319,24 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
                      _reference_holdout(ref_problem, accepted_fits, len(base.delta_p)), ref_sim,
-                     model_from_data)
+                     model_from_data, equivalent)
+
+
+def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Candidate]) -> dict:
+    """For each accepted effect, the significant candidates the data cannot rank below it: not accepted
+    (forward selection found nothing they add beyond the accepted effects) and their held-out shrink
+    (beyond the reference) inside the accepted effect's bootstrap interval. E.g. a weaker drive fl and a
+    stronger drive rl load the same side's steering and chassis rows alike once the base parameters are
+    free. Returns {accepted label: [candidates, best first]}."""
+    taken = {id(c) for c in accepted}
+    out = {}
+    for a in accepted:
+        lo, hi = a.evaluation.shrink_affected_ci
+        same = [o for o in candidates if id(o) not in taken and o.significant
+                and lo <= o.evaluation.shrink_affected <= hi]
+        if same:
+            out[a.hypothesis.label] = same
+    return out
 
 
 def _reference_holdout(ref_problem, accepted_fits: list[Fit], n_base: int) -> dict:

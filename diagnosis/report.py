@@ -74,6 +74,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "holdout_shrink_beyond_base_fit": c.shrink.shrink_affected,
         "holdout_shrink_beyond_base_fit_ci": list(c.shrink.shrink_affected_ci),
         "holdout_shrink_beyond_reference": c.evaluation.shrink_affected,
+        "holdout_shrink_beyond_reference_ci": list(c.evaluation.shrink_affected_ci),
         "affected_channel": ev.affected,
         "holdout_removed": c.evaluation.removed,
         "holdout_channels": {s.name: {"rms_before": s.rms_before, "rms_after": s.rms_after,
@@ -100,11 +101,22 @@ def gap_dict(d: Diagnosis) -> dict:
     model's RMS per channel). ``holdout_shrink_beyond_base_fit`` starts from the base fit instead, whose
     base parameters may move within their prior and so absorb part of an effect collinear with them
     (``base_fit_holdout_rms``); ``holdout_shrink_beyond_reference`` from the reference run's level of
-    the hypothesis (what the significance gate uses)."""
+    the hypothesis (what the significance gate uses). An accepted effect's ``equivalent`` lists the
+    significant candidates that explain the data as well (held-out shrink beyond the reference inside
+    the accepted effect's interval) and add nothing beyond the accepted effects: the campaign cannot
+    tell them apart."""
     ranked = [candidate_json(c, i + 1) for i, c in enumerate(d.candidates)]
     return _finite({
         "verdict": d.verdict,
-        "accepted": [candidate_json(c, i + 1) for i, c in enumerate(d.accepted)],
+        "accepted": [{**candidate_json(c, i + 1),
+                      "equivalent": [{"label": o.hypothesis.label, "name": o.hypothesis.name,
+                                      "variant": o.hypothesis.variant, "magnitude": o.magnitude.value,
+                                      "ci": list(o.magnitude.ci),
+                                      "holdout_shrink_beyond_reference": o.evaluation.shrink_affected,
+                                      "holdout_shrink_beyond_reference_ci":
+                                          list(o.evaluation.shrink_affected_ci)}
+                                     for o in d.equivalent.get(c.hypothesis.label, [])]}
+                     for i, c in enumerate(d.accepted)],
         "effects": ranked,
         "structured_channels": d.structured,
         "holdout": d.holdout,

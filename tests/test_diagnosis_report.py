@@ -139,3 +139,20 @@ def test_reference_holdout_is_the_reference_runs_residual(diagnosis):
         after = r - fit.theta[0] * ch.velocity[ch.fitted]
         assert out["with_effects"][ch.name] == pytest.approx(np.sqrt(np.mean(after ** 2)))
     assert _reference_holdout(None, [fit], 10) == {}
+
+
+def test_equivalent_explanations_are_the_significant_ones_inside_the_accepted_interval():
+    """An accepted effect's equivalents: significant, not accepted, held-out shrink inside its interval."""
+    from qomni.diagnosis.diagnose import equivalents
+
+    def cand(label, shrink, ci, significant=True):
+        return SimpleNamespace(hypothesis=SimpleNamespace(label=label), significant=significant,
+                               evaluation=SimpleNamespace(shrink_affected=shrink, shrink_affected_ci=ci))
+
+    rl = cand("tce rl", 0.80, (0.68, 0.89))
+    fl = cand("tce fl", 0.79, (0.64, 0.88))
+    rr = cand("tce rr", 0.41, (-0.01, 0.71))                # its interval overlaps, its estimate does not
+    weak = cand("stribeck", 0.75, (0.6, 0.9), significant=False)
+    second = cand("incline", 0.78, (0.7, 0.85))             # accepted itself: never an alternative
+    found = equivalents([rl, fl, second, weak, rr], [rl, second])
+    assert found == {"tce rl": [fl], "incline": [fl]}
