@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qomni.ident.rundir import write_json
+from qomni.ident.rundir import read_json, write_json
 
 from .diagnose import Diagnosis
 from .figures import unit_text
@@ -88,6 +88,15 @@ def candidate_json(c: Candidate, rank: int) -> dict:
     }
 
 
+def _reference_parameters(reference: str) -> str | None:
+    """What a digital twin reference was made from (its ``twin.json``: the model as identified, or a
+    physically consistent re-identification of the data run); None for another reference run."""
+    stamp = Path(reference) / "twin.json"
+    if reference == "none" or not stamp.is_file():
+        return None
+    return read_json(stamp).get("parameters", "the model as identified")
+
+
 def gap_dict(d: Diagnosis) -> dict:
     """The content of ``gap.json``: ``effects`` ranked (all candidates, most held-out residual
     removed first; the accepted ones carry ``significant: true``), ``verdict``, ``accepted``,
@@ -124,6 +133,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "data": d.data_source,
         "data_run": d.data_run,
         "reference": d.reference,
+        "reference_parameters": _reference_parameters(d.reference),
         "model_identified_on_data": d.model_from_data,
         "base_parameters": "free (the model was identified on these data)" if d.model_from_data
         else f"held within their prior ({PRIOR_STD_FACTOR:g} sigma of the model's)",

@@ -33,7 +33,20 @@ IV_ITERATIONS = 2
 
 def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
                  estimator: str = "wls") -> IdentificationResult:
-    """Identify from a run directory and write ``identification.json`` into it.
+    """Identify from a run directory and write ``identification.json`` into it (:func:`identify`).
+
+    Raises: as :func:`identify`.
+    """
+    run_dir = Path(run_dir)
+    result, data = identify(run_dir, torque_lag=torque_lag, estimator=estimator)
+    write_json(run_dir / IDENTIFICATION_JSON, data)
+    return result
+
+
+def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
+             estimator: str = "wls") -> tuple[IdentificationResult, dict]:
+    """Identify from a run directory: the result and the content of its ``identification.json``, not
+    written (a single-axis recording made with another torque lag is re-identified in place).
 
     Args:
         run_dir: a campaign's run directory.
@@ -86,8 +99,7 @@ def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
     data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS),
                    "signals_sha256": file_sha256(run_dir / SIGNALS)}
-    write_json(run_dir / IDENTIFICATION_JSON, data)
-    return result
+    return result, data
 
 
 def single_axis_lag(run_dir: Path) -> float:

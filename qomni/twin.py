@@ -12,6 +12,11 @@ What the twin is made of:
 * the bodies as the paper idealises them: the lumped inertias and masses are the truth, the steering
   units and wheels carry negligible mass (the emulator's ideal vehicle, ``EffectSet.ideal()``), so the
   twin has no unmodelled effect by construction;
+* a model identified on the data run whose least-squares estimate is not physical (a negative friction,
+  e.g. a long actuator delay acts as negative damping in the steering steps) cannot be a vehicle: the
+  twin reference is then made from the same run re-identified with the ``consistent`` estimator (every
+  inertia, mass and friction ≥ 0, docs/identification.md) at the model's torque lag, and ``twin.json``
+  in the twin's directory says so (``parameters``);
 * ``[body]``'s contact (tyre friction, contact stiffness and damping, chassis height, wheel transverse
   inertia) and ``[noise]``: the built-in prototype's, since neither a data sheet nor an identification
   gives them.
@@ -126,10 +131,10 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     settings = CampaignSettings(**{"lane_changes": 1, **recorded})
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
-    result = load_identification(identification)
-    description = twin_description(result, sheet, str(identification))
+    description, parameters = _twin_of(Path(identification), data_dir, sheet)
     controller = _controller_of(meta)
-    key = {"twin": twin_toml(description), "settings": meta.get("settings", {}), "controller": asdict(controller)}
+    key = {"twin": twin_toml(description), "settings": meta.get("settings", {}), "controller": asdict(controller),
+           "parameters": parameters}
     stamp = cache / "twin.json"
     if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
         done = read_json(cache / METADATA)
@@ -150,6 +155,29 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
 
     write_json(stamp, key)
     return cache
+
+
+def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[VehicleDescription, str]:
+    """The twin of the model, or, where the model was identified on ``data_dir`` and is not physical, of
+    that run re-identified with the ``consistent`` estimator at the model's torque lag; and which.
+
+    Raises: TwinError: the model is not physical and was not identified on ``data_dir`` (or the
+    consistent estimate is not physical either)."""
+    from qomni.diagnosis.diagnose import identified_on
+    from qomni.ident.identify import identify
+
+    result = load_identification(identification)
+    try:
+        return twin_description(result, sheet, str(identification)), "the model as identified"
+    except TwinError as exc:
+        if not identified_on(identification, data_dir):
+            raise
+        lag = result.torque_lag.get("value", 0.0) if result.torque_lag else 0.0
+        consistent, _ = identify(data_dir, torque_lag=lag, estimator="consistent")
+        held = ", ".join(consistent.estimator_info.get("active_bounds", [])) or "none"
+        return (twin_description(consistent, sheet, f"{identification} (consistent estimator)"),
+                f"the data run re-identified with the consistent estimator (parameters held at 0: {held}); "
+                f"the model as identified is not physical: {exc}")
 
 
 def _controller_of(meta: dict):

@@ -51,7 +51,17 @@ def diagnose(
     console.print(Text.assemble(("verdict:", "bold"), f" {d.verdict}"))
     json_path, html_path = write_report(d, out)
     console.print(f"reference run: {d.reference}")
+    twin_parameters = json_parameters(json_path)
+    if twin_parameters:
+        console.print(Text(f"twin made from: {twin_parameters}"))
     console.print(f"written {json_path} and {html_path}")
+
+
+def json_parameters(gap_json: Path) -> str | None:
+    """gap.json's ``reference_parameters`` (what the twin reference was made from)."""
+    import json
+
+    return json.loads(Path(gap_json).read_text()).get("reference_parameters")
 
 
 def _twin_reference(model: Path, data: Path, cache: Path, datasheet: Optional[Path]) -> Path:
