@@ -328,11 +328,12 @@ def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Cand
     (beyond the reference) inside the accepted effect's bootstrap interval. E.g. a weaker drive fl and a
     stronger drive rl load the same side's steering and chassis rows alike once the base parameters are
     free. Returns {accepted label: [candidates, best first]}."""
-    taken = {id(c) for c in accepted}
+    # by label: forward selection refits an accepted effect jointly, so its single fit is another object
+    taken = {c.hypothesis.label for c in accepted}
     out = {}
     for a in accepted:
         lo, hi = a.evaluation.shrink_affected_ci
-        same = [o for o in candidates if id(o) not in taken and o.significant
+        same = [o for o in candidates if o.hypothesis.label not in taken and o.significant
                 and lo <= o.evaluation.shrink_affected <= hi]
         if same:
             out[a.hypothesis.label] = same

@@ -154,5 +154,6 @@ def test_equivalent_explanations_are_the_significant_ones_inside_the_accepted_in
     rr = cand("tce rr", 0.41, (-0.01, 0.71))                # its interval overlaps, its estimate does not
     weak = cand("stribeck", 0.75, (0.6, 0.9), significant=False)
     second = cand("incline", 0.78, (0.7, 0.85))             # accepted itself: never an alternative
-    found = equivalents([rl, fl, second, weak, rr], [rl, second])
+    refit = cand("incline", 0.77, (0.7, 0.85))              # its joint refit in forward selection
+    found = equivalents([rl, fl, second, weak, rr], [rl, refit])
     assert found == {"tce rl": [fl], "incline": [fl]}

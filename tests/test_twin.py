@@ -53,3 +53,34 @@ def test_the_twin_repeats_the_data_runs_controller_with_its_recorded_steering_ba
     c = _controller_of({"controller": {"probe": True, "steering_bandwidth": 13.4, "retired_setting": 1}})
     assert c.probe and c.steering_bandwidth == 13.4 and not c.probe_retunes
     assert _controller_of({}).steering_bandwidth == 45.0 and not _controller_of({}).probe
+
+
+@pytest.mark.slow
+def test_a_model_that_is_not_physical_gets_the_twin_of_its_runs_consistent_estimate(tmp_path):
+    """A model identified on the data run with a negative friction (as a long actuator delay gives) is not a
+    vehicle: the twin is made from the same run re-identified with the consistent estimator, and says so.
+    A model from another run is refused as before."""
+    import json
+
+    from qomni.embedded import embedded_vehicle
+    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.ident.identify import identify_run
+    from qomni.twin import _twin_of
+
+    run = tmp_path / "run"
+    with embedded_vehicle(VehicleDescription.load(), seed=3, effects=EffectSet.ideal()) as client:
+        Campaign(DataSheet.load(), run, CampaignSettings.quick(), source="test").run(client)
+    identify_run(run)
+    data = json.loads((run / "identification.json").read_text())
+    data["parameters"]["d_vl"]["value"] = -2.0
+    model = tmp_path / "model.json"
+    model.write_text(json.dumps(data))
+    sheet = DataSheet.load()
+    description, parameters = _twin_of(model, run, sheet)
+    assert "consistent estimator" in parameters and "d_vl = -2.0" in parameters
+    assert description.truth.d_vl == pytest.approx(json.loads((run / "identification.json").read_text())
+                                                   ["parameters"]["d_vl"]["value"])  # WLS was admissible
+    data["run"]["signals_sha256"] = "0" * 64                    # identified on another run
+    model.write_text(json.dumps(data))
+    with pytest.raises(TwinError, match="negative friction"):
+        _twin_of(model, run, sheet)
