@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qomni.ident.rundir import read_json, write_json
+from qomni.ident.rundir import TWIN_STAMP, read_json, write_json
 
 from .diagnose import Diagnosis
 from .figures import unit_text
@@ -88,13 +88,21 @@ def candidate_json(c: Candidate, rank: int) -> dict:
     }
 
 
-def _reference_parameters(reference: str) -> str | None:
-    """What a digital twin reference was made from (its ``twin.json``: the model as identified, or a
+def reference_parameters(reference: str) -> str | None:
+    """What a digital twin reference run was made from (its ``twin.json``: the model as identified, or a
     physically consistent re-identification of the data run); None for another reference run."""
-    stamp = Path(reference) / "twin.json"
+    stamp = Path(reference) / TWIN_STAMP
     if reference == "none" or not stamp.is_file():
         return None
     return read_json(stamp).get("parameters", "the model as identified")
+
+
+def _equivalent_json(o: Candidate) -> dict:
+    """An equivalent explanation of an accepted effect (:func:`.diagnose.equivalents`) in ``gap.json``."""
+    return {"label": o.hypothesis.label, "name": o.hypothesis.name, "variant": o.hypothesis.variant,
+            "magnitude": o.magnitude.value, "ci": list(o.magnitude.ci),
+            "holdout_shrink_beyond_reference": o.evaluation.shrink_affected,
+            "holdout_shrink_beyond_reference_ci": list(o.evaluation.shrink_affected_ci)}
 
 
 def gap_dict(d: Diagnosis) -> dict:
@@ -118,13 +126,7 @@ def gap_dict(d: Diagnosis) -> dict:
     return _finite({
         "verdict": d.verdict,
         "accepted": [{**candidate_json(c, i + 1),
-                      "equivalent": [{"label": o.hypothesis.label, "name": o.hypothesis.name,
-                                      "variant": o.hypothesis.variant, "magnitude": o.magnitude.value,
-                                      "ci": list(o.magnitude.ci),
-                                      "holdout_shrink_beyond_reference": o.evaluation.shrink_affected,
-                                      "holdout_shrink_beyond_reference_ci":
-                                          list(o.evaluation.shrink_affected_ci)}
-                                     for o in d.equivalent.get(c.hypothesis.label, [])]}
+                      "equivalent": [_equivalent_json(o) for o in d.equivalent.get(c.hypothesis.label, [])]}
                      for i, c in enumerate(d.accepted)],
         "effects": ranked,
         "structured_channels": d.structured,
@@ -133,7 +135,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "data": d.data_source,
         "data_run": d.data_run,
         "reference": d.reference,
-        "reference_parameters": _reference_parameters(d.reference),
+        "reference_parameters": reference_parameters(d.reference),
         "model_identified_on_data": d.model_from_data,
         "base_parameters": "free (the model was identified on these data)" if d.model_from_data
         else f"held within their prior ({PRIOR_STD_FACTOR:g} sigma of the model's)",

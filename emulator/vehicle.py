@@ -110,9 +110,7 @@ class Emulator:
             self._physics_step()
         self._steps = 0
         self._sensed_joints = [*self._plant.encoder_joints, self._steer[0], self._steer[2]]
-        self._angles_now = None
-        self._read_sensed_joints()
-        self._angles_before = self._angles_now
+        self._angles_now = self._angles_before = self._sensed_angles()
         self._position_history.clear()
         self._position_history.append(self._encoder_positions())
 
@@ -231,10 +229,13 @@ class Emulator:
         self._pb.stepSimulation()
         self._steps += 1
 
+    def _sensed_angles(self) -> np.ndarray:
+        """The sensed joints' angles now (encoder joints, then the fl and fr steering joints), rad."""
+        return np.array([s[0] for s in self._pb.getJointStates(self.body, self._sensed_joints)])
+
     def _read_sensed_joints(self) -> None:
-        """Advance the sensed joints' angles (encoder joints, then the fl and fr steering joints), rad."""
-        self._angles_before = self._angles_now
-        self._angles_now = np.array([s[0] for s in self._pb.getJointStates(self.body, self._sensed_joints)])
+        """Advance the sensed joints' angles by the physics step just taken."""
+        self._angles_before, self._angles_now = self._angles_now, self._sensed_angles()
 
     def _sampled_angles(self) -> np.ndarray:
         """The sensed joints' angles at the sampling instant of the continuous motion, rad.

@@ -21,6 +21,8 @@ from .recording import Signals, read_signals
 METADATA = "metadata.json"
 SIGNALS = "signals.csv"
 IDENTIFICATION_JSON = "identification.json"
+#: A digital twin reference run's stamp: what the twin and its campaign were made from (qomni.twin).
+TWIN_STAMP = "twin.json"
 VALIDATION_JSON = "validation.json"
 SINGLE_AXIS_JSON = "single_axis.json"
 SINGLE_AXIS_DIR = "single_axis"

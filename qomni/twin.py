@@ -35,7 +35,8 @@ from qomni.datasheet import DataSheet
 from qomni.emulator.description import Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.result import IdentificationResult
-from qomni.ident.rundir import METADATA, SIGNALS, datasheet_from_metadata, load_identification, read_json
+from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, datasheet_from_metadata, load_identification,
+                                read_json)
 
 #: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
 TWIN_REFERENCE = "twin_reference"
@@ -133,9 +134,9 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
     controller = _controller_of(meta)
-    key = {"twin": twin_toml(description), "settings": meta.get("settings", {}), "controller": asdict(controller),
+    key = {"twin": twin_toml(description), "settings": recorded, "controller": asdict(controller),
            "parameters": parameters}
-    stamp = cache / "twin.json"
+    stamp = cache / TWIN_STAMP
     if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
         done = read_json(cache / METADATA)
         if done.get("status") == "complete":
@@ -165,6 +166,7 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
     consistent estimate is not physical either)."""
     from qomni.diagnosis.diagnose import identified_on
     from qomni.ident.identify import identify
+    from qomni.ident.torque_timing import model_lag
 
     result = load_identification(identification)
     try:
@@ -172,8 +174,7 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
     except TwinError as exc:
         if not identified_on(identification, data_dir):
             raise
-        lag = result.torque_lag.get("value", 0.0) if result.torque_lag else 0.0
-        consistent, _ = identify(data_dir, torque_lag=lag, estimator="consistent")
+        consistent, _ = identify(data_dir, torque_lag=model_lag(result), estimator="consistent")
         held = ", ".join(consistent.estimator_info.get("active_bounds", [])) or "none"
         return (twin_description(consistent, sheet, f"{identification} (consistent estimator)"),
                 f"the data run re-identified with the consistent estimator (parameters held at 0: {held}); "

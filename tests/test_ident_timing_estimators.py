@@ -61,8 +61,8 @@ def test_a_report_lag_is_estimated_within_0_2_ms(recorded, delta):
 def test_drives_reporting_one_cycle_late_are_read_from_the_campaign(recorded, tmp_path):
     run_dir, _ = recorded
     description = VehicleDescription.load()
-    late = EffectSet.from_dict({"heavy_steering_units": {"steering_unit_mass": 20.0, "wheel_mass": 8.0},
-                                "torque_report_lag": {"lag": description.drive.cycle_time}})
+    late = EffectSet.combine(EffectSet.prototype(description),
+                             EffectSet.from_dict({"torque_report_lag": {"lag": description.drive.cycle_time}}))
     with embedded_vehicle(description, seed=0, effects=late) as client:
         Campaign(DataSheet.load(), tmp_path / "late", CampaignSettings.quick(), source="test").run(client)
     exact = identify_run(shutil.copytree(run_dir, tmp_path / "exact"), torque_lag="auto")

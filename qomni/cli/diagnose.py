@@ -29,7 +29,7 @@ def diagnose(
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from qomni.diagnosis.diagnose import diagnose_paths
-    from qomni.diagnosis.report import write_report
+    from qomni.diagnosis.report import reference_parameters, write_report
 
     if reference is None:
         reference = _twin_reference(model, data, out / "twin_reference", datasheet)
@@ -51,17 +51,10 @@ def diagnose(
     console.print(Text.assemble(("verdict:", "bold"), f" {d.verdict}"))
     json_path, html_path = write_report(d, out)
     console.print(f"reference run: {d.reference}")
-    twin_parameters = json_parameters(json_path)
+    twin_parameters = reference_parameters(d.reference)
     if twin_parameters:
         console.print(Text(f"twin made from: {twin_parameters}"))
     console.print(f"written {json_path} and {html_path}")
-
-
-def json_parameters(gap_json: Path) -> str | None:
-    """gap.json's ``reference_parameters`` (what the twin reference was made from)."""
-    import json
-
-    return json.loads(Path(gap_json).read_text()).get("reference_parameters")
 
 
 def _twin_reference(model: Path, data: Path, cache: Path, datasheet: Optional[Path]) -> Path:
