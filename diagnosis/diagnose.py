@@ -9,8 +9,9 @@ Procedure
 1. Residual channels of the data under the model (:mod:`diagnosis.channels`), broken down by step,
    mode, regime, band and window with whiteness and cross-correlation tests (:mod:`diagnosis.where`).
 2. The base fit: the model's parameters may move within their uncertainty (prior, :mod:`diagnosis.fit`).
-3. Every hypothesis of :data:`diagnosis.hypotheses.LIBRARY` fitted as a nested extension; ranked by
-   the weighted held-out residual it removes.
+3. Every hypothesis of :data:`diagnosis.hypotheses.LIBRARY` fitted as a nested extension (with free
+   base parameters in the form that keeps only what no base parameter can take,
+   :func:`diagnosis.hypotheses.library`); ranked by the weighted held-out residual it removes.
 4. Forward selection: the best significant hypothesis is accepted, the others are re-tested with it
    in the model; repeated while one is significant (so two effects at once are both named).
 5. Verdict: the accepted effects; else "no significant unmodelled effect" when the residual passes
@@ -29,16 +30,16 @@ from qomni.conventions import P1_NAMES
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_run,
-                               read_json)
+                               lifted_wheel_friction, lifted_wheels, read_json)
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
-from .hypotheses import LIBRARY, Hypothesis, generic, plausible
+from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
-from .problem import Fit, Problem, make_problem
+from .problem import Fit, MeasuredBase, Problem, make_problem
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -131,6 +132,9 @@ class Diagnosis:
     model_from_data: bool = False
     #: accepted effect's label → the candidates that explain the data as well (:func:`equivalents`)
     equivalent: dict = field(default_factory=dict)
+    #: base parameter → (value, std) measured on the lifted vehicle that holds it in the fits where the
+    #: base parameters are otherwise free (:func:`measured_base`); empty when none
+    lifted: dict = field(default_factory=dict)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -138,6 +142,25 @@ class Diagnosis:
 #: leaves on its own run in that channel: a first effect whose hypothesis leaves most of a channel's
 #: residual unexplained (a backlash's torque transients) otherwise hides a second one there.
 FLOOR_MULTIPLE_MORE = 4.0
+
+
+def measured_base(model: IdentificationResult, lifted: dict | None) -> MeasuredBase | None:
+    """The wheels' friction measured on the lifted vehicle as a measurement of the base parameters for
+    fits whose base parameters are otherwise free: δp_k ~ N(lifted_k − p̂_k, (PRIOR_STD_FACTOR·σ_k)²).
+
+    A model identified on the vehicle on its wheels holds in d_vw, d_cw everything that resists the
+    wheels' rolling: the joints' friction and whatever the ground adds (rolling resistance, a toed
+    wheel's scrub). Lifted, the wheels show their joints' friction alone, from a run independent of the
+    diagnosed rows, so the base fit cannot absorb the ground's share and the hypotheses compete for it.
+    ``lifted``: :func:`qomni.ident.rundir.lifted_wheel_friction`; None → None."""
+    if not lifted:
+        return None
+    names = list(lifted)
+    index = tuple(P1_NAMES.index(n) for n in names)
+    p = np.asarray(model.p1, dtype=float)
+    delta = np.array([lifted[n][0] for n in names]) - p[list(index)]
+    std = fitting.PRIOR_STD_FACTOR * np.array([lifted[n][1] for n in names])
+    return MeasuredBase(index, delta, std)
 
 
 def _own_floor(ref_problem) -> dict:
@@ -160,14 +183,19 @@ def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
     return own > 0 and _removed_rms(ev, ev.affected) >= FLOOR_MULTIPLE_MORE * own
 
 
-def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, floor=None):
+def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
+                 floor=None, rows: RuleRows | None = None):
     """Re-test the remaining hypotheses with the accepted effects in the model, each beyond its level in
-    the reference run (``levels``, as in the first round); return the best significant one or None."""
+    the reference run (``levels``, as in the first round); return the best significant one or None.
+
+    The hypotheses' ``resolve`` rules see this round's candidates too (``rows``), but here they may only
+    withdraw a name: a candidate stays significant where it passed this round's gate and the rule left it
+    so (the Stribeck rule's promotion rests on the first round's test, not on a further effect's)."""
     base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache)
     taken = {c.hypothesis.name for c in accepted}
     head = sum(len(f.hypothesis.parameters) for f in accepted_fits)
-    best = None
-    for h in LIBRARY:
+    found = []
+    for h in hypotheses:
         if h.name in taken:
             continue
         joint = combine(accepted_fits, h)
@@ -184,15 +212,22 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         physical = cand.physical  # the joint hypothesis checks the added effect's part
         significant = cand.p_value < fitting.ALPHA_MORE and fitting.present(cand) and physical \
             and _confirms_further(cand.evaluation, floor)
-        if significant and (best is None or cand.evaluation.removed > best[0].evaluation.removed):
-            sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
-                                    cand.p_value, cand.evaluation,
-                                    fitting.collinearity(fp, h, cand.fit.nonlinear, cache),
-                                    physical, True, ["accepted in forward selection with "
-                                                     + ", ".join(c.hypothesis.label for c in accepted)],
-                                    cand.added_to_model, cand.from_model, cand.presence_p)
-            best = (sub, cand.fit)
-    return best
+        sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
+                                cand.p_value, cand.evaluation, {}, physical, significant,
+                                ["accepted in forward selection with "
+                                 + ", ".join(c.hypothesis.label for c in accepted)],
+                                cand.added_to_model, cand.from_model, cand.presence_p)
+        found.append((sub, cand.fit, significant))
+    if rows is not None:
+        subs = [f[0] for f in found]
+        for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
+            resolve(subs, rows)
+    passed = [(sub, fit) for sub, fit, gate in found if gate and sub.significant]
+    if not passed:
+        return None
+    sub, fit = max(passed, key=lambda f: f[0].evaluation.removed)
+    sub.identifiability = fitting.collinearity(fp, sub.hypothesis, fit.nonlinear, cache)
+    return sub, fit
 
 
 def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
@@ -237,22 +272,29 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
-    fp, hp = make_problem(chans, lag, hold, base_prior=prior)
+    hypotheses = library(model_from_data)
+    measured = lifted = None
+    if model_from_data:
+        lifted = lifted_wheel_friction(data_dir)
+        measured = measured_base(model, lifted)
+    fp, hp = make_problem(chans, lag, hold, base_prior=prior, measured=measured)
     cache: dict = {}
     levels: dict = {}
     ref_problem = None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
         r_signals, r_sheet, _ = _load_run(reference_dir, model)
         ref = channels(r_signals, r_sheet, model)
-        ref_problem, _ = make_problem(ref, lag, ref, base_prior=prior)
-        levels = fitting.reference_levels(ref_problem, model, LIBRARY, lag, cache)
+        # the twin's wheels have the model's friction, lifted or not, measured as precisely as the data's
+        ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
+        ref_problem, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
+        levels = fitting.reference_levels(ref_problem, model, hypotheses, lag, cache)
     base = fitting.solve(fp, model, None, None, lag, cache)
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
-                              for h in LIBRARY) if c is not None]
-    all_rows = fp if hold is not None else make_problem(chans, lag, chans, base_prior=prior)[0]
-    rows = RuleRows(all_rows, ref_problem, model, lag, cache)
-    for resolve in dict.fromkeys(h.resolve for h in LIBRARY if h.resolve is not None):
+                              for h in hypotheses) if c is not None]
+    all_rows = fp if hold is not None else make_problem(chans, lag, chans, base_prior=prior, measured=measured)[0]
+    rows = RuleRows(all_rows, ref_problem, model, lag, cache, lifted_wheels(data_dir))
+    for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
         resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
@@ -262,7 +304,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         accepted_fits.append(first.fit)
         floor = _own_floor(ref_problem)
         while len(accepted) < MAX_EFFECTS:
-            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, floor)
+            more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
+                                floor, rows)
             if more is None:
                 break
             cand, joint_fit = more
@@ -319,7 +362,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
                      _reference_holdout(ref_problem, accepted_fits, len(base.delta_p)), ref_sim,
-                     model_from_data, equivalent)
+                     model_from_data, equivalent, lifted or {})
 
 
 def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Candidate]) -> dict:

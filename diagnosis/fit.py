@@ -7,6 +7,10 @@ Estimation problem for hypothesis e (all channels stacked, rows weighted per cha
     δp ~ N(0, Σ_prior)                                (the base parameters may move within their
                                                         uncertainty, nothing more)
 
+With a model identified on the same rows there is no prior (the base parameters are free), except for
+those measured independently (``Problem.measured``: the wheels' friction on the lifted vehicle),
+δp_k ~ N(p_k,measured − p̂_k, (PRIOR_STD_FACTOR·σ_k,measured)²).
+
 r_c is what the given model leaves in channel c. Row weights are 1/(σ_c·√L): σ_c the channel's residual
 RMS under the base fit and L the rows over which the ω_g-filtered residuals stay correlated (so the data
 count as n/L independent rows against the prior). The base fit is the same problem without Φ_e.
@@ -105,6 +109,12 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
         P[:, :n_base] = np.diag(1.0 / base_prior_std(model))
         A = np.vstack(blocks_A + [P])
         b = np.concatenate(blocks_b + [np.zeros(n_base)])
+    elif problem.measured is not None:
+        m = problem.measured
+        P = np.zeros((len(m.index), n_cols))
+        P[np.arange(len(m.index)), list(m.index)] = 1.0 / m.std
+        A = np.vstack(blocks_A + [P])
+        b = np.concatenate(blocks_b + [m.delta / m.std])
     else:
         A, b = np.vstack(blocks_A), np.concatenate(blocks_b)
     scale = np.linalg.norm(A, axis=0)

@@ -17,6 +17,17 @@ WINDOW = 1.0
 KINEMATIC_CORRELATION = 0.25
 
 
+@dataclass(frozen=True)
+class MeasuredBase:
+    """Base parameters known from a measurement independent of the fitted rows: their shift from the
+    model, δp_k ~ N(delta, std²), for the parameters ``index`` of p₁ (e.g. the wheels' friction from the
+    lifted vehicle's single-axis run)."""
+
+    index: tuple[int, ...]
+    delta: np.ndarray   # (len(index),), units of p₁
+    std: np.ndarray     # (len(index),), > 0
+
+
 @dataclass
 class Problem:
     """The stacked channels of one data set, with fit/held-out row selection and weights."""
@@ -29,6 +40,9 @@ class Problem:
     #: Whether the base parameters are held by their prior (σ = PRIOR_STD_FACTOR·σ_model) or free: free
     #: where the model was identified on these very rows (:func:`.fit.solve`).
     base_prior: bool = True
+    #: With free base parameters, those measured independently of these rows are held by that
+    #: measurement (:func:`.fit.solve`); None: all free.
+    measured: MeasuredBase | None = None
 
 
 def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
@@ -43,11 +57,13 @@ def channel_lag(ch: ChannelData, lag: int) -> int:
 
 
 def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
-                 window: float = WINDOW, base_prior: bool = True) -> tuple[Problem, Problem]:
+                 window: float = WINDOW, base_prior: bool = True,
+                 measured: MeasuredBase | None = None) -> tuple[Problem, Problem]:
     """The fitting problem and the held-out problem.
 
     Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
-    row of ``channels`` is fitted and ``holdout`` is evaluated. ``base_prior``: :attr:`Problem.base_prior`.
+    row of ``channels`` is fitted and ``holdout`` is evaluated. ``base_prior``, ``measured``:
+    :attr:`Problem.base_prior`, :attr:`Problem.measured`.
     """
     weights = []
     fit_rows, hold_rows, wins = [], [], []
@@ -67,14 +83,14 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
         weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
     weights = np.array(weights)
-    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins, base_prior)
+    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins, base_prior, measured)
     if holdout is None:
-        return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior)
+        return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior, measured)
     by_name = {c.name: i for i, c in enumerate(channels)}
     h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
     h_rows = [c.fitted.copy() for c in holdout]
     return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout],
-                        base_prior)
+                        base_prior, measured)
 
 
 def restrict(problem: Problem, keep) -> Problem:
@@ -82,7 +98,7 @@ def restrict(problem: Problem, keep) -> Problem:
     idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
     return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
                    [problem.holdout_rows[i] for i in idx], problem.weights[idx],
-                   [problem.window_id[i] for i in idx], problem.base_prior)
+                   [problem.window_id[i] for i in idx], problem.base_prior, problem.measured)
 
 
 @dataclass

@@ -55,6 +55,17 @@ def _finite(x):
     return x
 
 
+def _base_parameters(d: Diagnosis) -> str:
+    """How the fits treat the base parameters, in words (gap.json ``base_parameters``)."""
+    if not d.model_from_data:
+        return f"held within their prior ({PRIOR_STD_FACTOR:g} sigma of the model's)"
+    text = "free (the model was identified on these data)"
+    if d.lifted:
+        text += (", except " + ", ".join(d.lifted) + f": held within {PRIOR_STD_FACTOR:g} sigma of their value "
+                 "measured on the lifted vehicle (single_axis.json)")
+    return text
+
+
 def candidate_json(c: Candidate, rank: int) -> dict:
     m = c.magnitude
     ev = c.from_model
@@ -137,8 +148,8 @@ def gap_dict(d: Diagnosis) -> dict:
         "reference": d.reference,
         "reference_parameters": reference_parameters(d.reference),
         "model_identified_on_data": d.model_from_data,
-        "base_parameters": "free (the model was identified on these data)" if d.model_from_data
-        else f"held within their prior ({PRIOR_STD_FACTOR:g} sigma of the model's)",
+        "base_parameters": _base_parameters(d),
+        "lifted_wheel_friction": {n: {"value": v, "std": s} for n, (v, s) in d.lifted.items()},
         "base_parameter_shift": d.base_delta_p,
         "model_holdout_rms": d.model_holdout_rms,
         "base_fit_holdout_rms": d.holdout_rms,

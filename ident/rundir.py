@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qomni.conventions import WHEELS
 from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
 
 from .result import IdentificationResult
@@ -199,6 +200,66 @@ def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
                                     f"got {value}")
         return value, "single-axis identification (lifted vehicle)"
     return sheet.nominal.B_w, "data sheet"
+
+
+#: Parameters of p₁ that the single-axis run measures on lifted wheels (``single_axis.json``, pooled).
+LIFTED_WHEEL_PARAMETERS = ("d_vw", "d_cw")
+
+
+def lifted_wheel_friction(run_dir: str | Path) -> dict[str, tuple[float, float]] | None:
+    """The wheel joints' friction measured on the lifted vehicle (the campaign's single-axis run):
+    ``{"d_vw": (value [N m s/rad], std), "d_cw": (value [N m], std)}``, wheel side; None when the run
+    has no ``single_axis.json``.
+
+    Raises:
+        RunDirectoryError: a value or std is missing, not finite, a value is negative or a std not
+            positive (the message names the file and key)."""
+    path = Path(run_dir) / SINGLE_AXIS_JSON
+    if not path.exists():
+        return None
+    data = read_json(path)
+    out = {}
+    for name in LIFTED_WHEEL_PARAMETERS:
+        try:
+            value = float(data["pooled"][name]["value"])
+            std = float(data["pooled"][name]["std"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RunDirectoryError(f"{path}: pooled.{name}.value/std missing or not a number: {exc}") from None
+        if not (math.isfinite(value) and value >= 0 and math.isfinite(std) and std > 0):
+            raise RunDirectoryError(f"{path}: pooled.{name} must be a non-negative, finite value with a positive, "
+                                    f"finite std, got value {value}, std {std}")
+        out[name] = (value, std)
+    return out
+
+
+def lifted_wheels(run_dir: str | Path) -> dict[str, dict[str, tuple[float, float]]] | None:
+    """Each wheel's parameters measured on the lifted vehicle with its own drive (``single_axis.json``,
+    ``wheels``): ``{wheel: {"B_w" | "d_vw" | "d_cw": (value, std)}}`` (kg m², N m s/rad, N m, wheel
+    side); None when the run has no ``single_axis.json``.
+
+    Raises:
+        RunDirectoryError: a wheel or parameter is missing, a value or std not finite, a B_w not positive,
+            a friction negative or a std not positive (the message names the file and key)."""
+    path = Path(run_dir) / SINGLE_AXIS_JSON
+    if not path.exists():
+        return None
+    data = read_json(path)
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for wheel in WHEELS:
+        out[wheel] = {}
+        for name in ("B_w", *LIFTED_WHEEL_PARAMETERS):
+            key = f"wheels.{wheel}.{name}"
+            try:
+                value = float(data["wheels"][wheel][name]["value"])
+                std = float(data["wheels"][wheel][name]["std"])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise RunDirectoryError(f"{path}: {key}.value/std missing or not a number: {exc}") from None
+            low_ok = value > 0 if name == "B_w" else value >= 0
+            if not (math.isfinite(value) and low_ok and math.isfinite(std) and std > 0):
+                raise RunDirectoryError(f"{path}: {key} must be a finite, {'positive' if name == 'B_w' else 'non-negative'} "
+                                        f"value with a positive, finite std, got value {value}, std {std}")
+            out[wheel][name] = (value, std)
+    return out
 
 
 def load_identification(path: str | Path) -> IdentificationResult:

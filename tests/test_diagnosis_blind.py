@@ -163,3 +163,20 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
     assert fl["ci"][0] <= fl["magnitude"] <= fl["ci"][1] and fl["ci"][1] < 0   # 0.88: a weaker drive
     assert fl["ci"][0] < -0.12 < fl["ci"][1]
     assert "torque_constant_error (drive fl)" in gap["verdict"]
+
+
+@pytest.mark.slow
+def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_wheels_friction(tmp_path):
+    """A same-run identification puts rolling resistance into d_cw and the twin rolls with it: the
+    residuals alone cannot tell it. The campaign's single-axis run measured the wheels lifted, without
+    it; holding d_cw by that measurement, the diagnosis names the rolling resistance with its c_rr."""
+    from qomni.blind_suite import run_campaign
+
+    run = tmp_path / "rolling"
+    run_campaign(run, {"rolling_resistance": {"c_rr": 0.008}}, seed=35, quick=True)
+    gap = _diagnose_against_own_twin(run, run / "twin_gap")
+    assert [a["name"] for a in gap["accepted"]] == ["rolling_resistance"], gap["verdict"]
+    c_rr = gap["accepted"][0]
+    assert c_rr["ci"][0] <= 0.008 <= c_rr["ci"][1] and c_rr["magnitude"] == pytest.approx(0.008, rel=0.15)
+    assert set(gap["lifted_wheel_friction"]) == {"d_vw", "d_cw"}
+    assert "lifted vehicle" in gap["base_parameters"]

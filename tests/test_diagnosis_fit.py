@@ -338,3 +338,26 @@ def test_a_model_is_known_to_come_from_the_data_by_the_signals_it_was_identified
     legacy = run / "identification.json"                               # written before the hash was kept
     legacy.write_text(json.dumps({"run": {"status": "complete"}}))
     assert identified_on(legacy, run) and identified_on(run, run) and not identified_on(legacy, other)
+
+
+def test_a_base_parameter_measured_on_other_data_holds_what_the_free_base_would_absorb():
+    # Rolling resistance on a model identified on the same run: the identification put it into d_cw
+    # (the residual has none of it left), and with the base free the effect's column, a base column,
+    # is not identifiable. The lifted vehicle's measurement of d_cw (another run) says how much of the
+    # identified d_cw the joints have; the rest is the effect's.
+    from qomni.diagnosis.problem import MeasuredBase
+
+    rng = np.random.default_rng(22)
+    ch = _channel("straight/x_ch", rng)
+    ch.phi = ch.base[:, 9].copy()                     # d_cw's column
+    ch.residual = 0.02 * rng.normal(size=N_ROWS)      # absorbed: nothing left under the identified model
+    problem = _problem([ch])
+    problem.base_prior = False
+    free = fitting.solve(problem, MODEL, LEVEL, None, 1)
+    assert abs(free.theta[0]) < 0.05                  # the minimum-norm split, not a measurement
+    problem.measured = MeasuredBase((9,), np.array([-2.5]), np.array([0.05]))   # lifted: 2.5 lower
+    held = fitting.solve(problem, MODEL, LEVEL, None, 1)
+    assert held.delta_p[9] == pytest.approx(-2.5, abs=0.01)
+    assert held.theta[0] == pytest.approx(2.5, abs=0.01)
+    # no more certain than the measurement, which alone separates the two (rows' σ 1/√400 adds in quadrature)
+    assert held.theta_cov[0, 0] ** 0.5 == pytest.approx(math.hypot(0.05, 1 / math.sqrt(N_ROWS)), rel=0.05)

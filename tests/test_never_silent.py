@@ -16,7 +16,8 @@ from qomni.datasheet import DataSheet, DataSheetError
 from qomni.emulator.description import DescriptionError, VehicleDescription
 from qomni.ident.identify import identify_run
 from qomni.ident.recording import RecordingError, SignalWriter, read_signals
-from qomni.ident.rundir import RunDirectoryError, b_w_source, load_identification, load_run
+from qomni.ident.rundir import (RunDirectoryError, b_w_source, lifted_wheel_friction, lifted_wheels,
+                                load_identification, load_run)
 from qomni.vehicle_interface import Measurement
 
 DATA = Path(__file__).parent / "data" / "fmu_accuracy_run"
@@ -101,6 +102,45 @@ def test_an_impossible_single_axis_b_w_is_refused(run_dir, value):
     (run_dir / "single_axis.json").write_text(json.dumps({"pooled": {"B_w": {"value": value}}}))
     with pytest.raises(RunDirectoryError, match="single_axis.json: pooled.B_w.value must be a positive"):
         b_w_source(run_dir, DataSheet.load())
+
+
+_LIFTED = {"d_vw": {"value": 0.73, "std": 0.002}, "d_cw": {"value": 3.95, "std": 0.014}}
+
+
+@pytest.mark.parametrize("key,field,value,message", [
+    ("d_cw", "value", -0.1, "pooled.d_cw must be a non-negative, finite value"),
+    ("d_vw", "std", 0.0, "pooled.d_vw must be a non-negative, finite value with a positive"),
+    ("d_cw", "std", float("nan"), "pooled.d_cw must be"),
+    ("d_vw", "value", None, "pooled.d_vw.value/std missing or not a number"),
+])
+def test_the_lifted_wheels_friction_is_read_only_when_it_is_physical(tmp_path, key, field, value, message):
+    assert lifted_wheel_friction(tmp_path) is None                      # no single-axis run: no measurement
+    pooled = json.loads(json.dumps(_LIFTED))
+    (tmp_path / "single_axis.json").write_text(json.dumps({"pooled": pooled}))
+    assert lifted_wheel_friction(tmp_path) == {"d_vw": (0.73, 0.002), "d_cw": (3.95, 0.014)}
+    if value is None:
+        del pooled[key][field]
+    else:
+        pooled[key][field] = value
+    (tmp_path / "single_axis.json").write_text(json.dumps({"pooled": pooled}))
+    with pytest.raises(RunDirectoryError, match=f"single_axis.json: {message}"):
+        lifted_wheel_friction(tmp_path)
+
+
+@pytest.mark.parametrize("damage,message", [
+    (lambda w: w.pop("rr"), "wheels.rr.B_w.value/std missing"),
+    (lambda w: w["fl"]["B_w"].update(value=0.0), "wheels.fl.B_w must be a finite, positive value"),
+    (lambda w: w["rl"]["d_cw"].update(std=-1.0), "wheels.rl.d_cw must be a finite, non-negative value"),
+])
+def test_each_lifted_wheel_is_read_only_when_it_is_complete_and_physical(tmp_path, damage, message):
+    wheels = {w: {"B_w": {"value": 0.12, "std": 0.0008}, **json.loads(json.dumps(_LIFTED))}
+              for w in ("fl", "rl", "fr", "rr")}
+    (tmp_path / "single_axis.json").write_text(json.dumps({"wheels": wheels}))
+    assert lifted_wheels(tmp_path)["fr"]["B_w"] == (0.12, 0.0008)
+    damage(wheels)
+    (tmp_path / "single_axis.json").write_text(json.dumps({"wheels": wheels}))
+    with pytest.raises(RunDirectoryError, match=f"single_axis.json: {message}"):
+        lifted_wheels(tmp_path)
 
 
 # --- 5. user text is never console markup --------------------------------------------------------------

@@ -16,7 +16,9 @@ Hypotheses (``Hypothesis.name`` equals the effect name the emulator's effects fi
 =========================  ==============================================  =====================
 name                       columns                                         magnitude reported
 =========================  ==============================================  =====================
-payload                    Θ̂_{m_ch}, Θ̂_{C_ch}, centre-of-mass offset       Δm [kg]
+payload                    Θ̂_{m_ch}, Θ̂_{C_ch}, centre-of-mass offset       Δm [kg]; with free base
+                                                                           parameters the offset's
+                                                                           first moment only [kg m]
 incline                    m_ch·g along world x, y in the chassis frame   angle [rad]
 stribeck (wheels/steering) d_c·exp(−(v/v_s)²)·s(v), v_s profiled; s the   breakaway ratio − 1
                            direction of sliding, or of the motion ending a
@@ -61,3 +63,12 @@ LIBRARY: tuple[Hypothesis, ...] = _discover()
 
 
 __all__ = ["Hypothesis", "Magnitude", "LIBRARY", "generic", "plausible"]
+
+
+def library(model_from_data: bool = False) -> tuple[Hypothesis, ...]:
+    """The hypotheses to test: :data:`LIBRARY`, where the base parameters are free (``model_from_data``:
+    a model identified on the diagnosed data) with each hypothesis replaced by its ``free_base`` form
+    (only the coefficients no base parameter can take)."""
+    if not model_from_data:
+        return LIBRARY
+    return tuple(h.free_base or h for h in LIBRARY)

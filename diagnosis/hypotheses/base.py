@@ -38,6 +38,11 @@ class Hypothesis:
         magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
         physical: ``θ -> bool``: whether the fitted sign is physically possible.
         absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
+        free_base: the hypothesis tested in this one's place where the base parameters are free (a
+            model identified on the diagnosed data, :func:`qomni.diagnosis.hypotheses.library`): the
+            coefficients whose columns are base columns (``absorbed_by``) are then the base's, their
+            fitted values are set by the solver's minimum norm, not by the data, and the hypothesis
+            keeps only the rest. None: tested as it is.
         relevant: smallest size of practical relevance; a smaller effect is not reported as
             significant however well the data determine it.
         size: ``θ -> float``, the size ``relevant`` bounds (default |θ₀|, the first coefficient).
@@ -57,6 +62,7 @@ class Hypothesis:
     magnitude: Callable = None
     physical: Callable[[np.ndarray], bool] = lambda theta: True
     absorbed_by: tuple[str, ...] = ()
+    free_base: "Hypothesis | None" = None
     nonlinear_unit: str = ""
     relevant: float = 0.0
     size: Callable[[np.ndarray], float] = lambda theta: abs(float(theta[0]))
@@ -72,13 +78,15 @@ class Hypothesis:
 class RuleRows:
     """What a hypothesis' ``resolve`` rule may fit on: the diagnosed run with every row a fit row
     (``all_rows``), the reference run's problem or None, the model, the correlation lag (rows) and the
-    fit cache (:mod:`qomni.diagnosis.fit`)."""
+    fit cache (:mod:`qomni.diagnosis.fit`); and the diagnosed run's lifted-wheel measurement
+    (:func:`qomni.ident.rundir.lifted_wheels`) or None."""
 
     all_rows: object
     reference: object | None
     model: object
     lag: int
     cache: dict
+    lifted_wheels: dict | None = None
 
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:

@@ -1,12 +1,21 @@
-"""Torque-constant error of one drive: −H_kᵀB e_j u_j."""
+"""Torque-constant error of one drive: −H_kᵀB e_j u_j.
+
+With the base parameters free (a model identified on the same run) an equal change of all four torque
+constants lies in the base span, so the drives differ only through their differences: a weaker drive
+fl and a stronger rl load the left side's rows alike. The lifted vehicle tells them apart
+(:func:`resolve_drive`): there each wheel is identified through its own drive, and a drive whose torque
+is f times what it reports makes its wheel's B_w read 1/f of the others'.
+"""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from qomni.conventions import WHEELS
 
 from ..channels import ChannelData
-from .base import Hypothesis, _input_torque, _linear_magnitude, _project, _torque_only
+from .base import Hypothesis, RuleRows, _input_torque, _linear_magnitude, _project, _torque_only
 
 
 def _torque_constant(j: int):
@@ -19,9 +28,64 @@ def _torque_constant(j: int):
     return columns
 
 
+#: |z| of a wheel's lifted B_w against the other three's median beyond which that wheel is off (two-sided
+#: 10⁻³). Identical wheels (the data sheet has one B_w) agree within their σ: |z| ≤ 1.29 in the 65 runs of
+#: the twin suite's two draws without a torque-constant error; the 5 with one read z = 8.2–16.1 on the
+#: faulty wheel (factors 1.08–1.13 and 0.875).
+LIFTED_Z = 3.29
+
+
+def lifted_inertia_ratio(wheels: dict, wheel: str) -> tuple[float, float]:
+    """B_w of ``wheel`` over the median of the other wheels' lifted B_w, and its σ (first order, from the
+    two wheels' σ).
+
+    ``wheels``: :func:`qomni.ident.rundir.lifted_wheels`. A torque-constant factor f on the wheel's drive
+    makes this 1/f: the lifted run reads that wheel's torques as 1/f of what acts on it. The median keeps
+    one faulty wheel out of the others' reference (with their mean, every wheel read off by a third of it)."""
+    value, std = wheels[wheel]["B_w"]
+    others = sorted(wheels[w]["B_w"] for w in wheels if w != wheel)
+    median, median_std = others[len(others) // 2]
+    ratio = value / median
+    return ratio, ratio * math.hypot(std / value, median_std / median)
+
+
+def resolve_drive(candidates: list, rows: RuleRows) -> None:
+    """The torque-constant variants' rule (``Hypothesis.resolve``): where the lifted run singles out one
+    wheel (|z| of its B_w ratio ≥ LIFTED_Z, the other three below) and that drive's variant is
+    significant with the sign the ratio implies (ratio < 1: a stronger drive, factor − 1 > 0), the
+    other drives' variants are not named: the data on the wheels cannot rank them, the lifted run can.
+    Without a lifted run, or where it shows no wheel or several off, nothing changes."""
+    if not rows.lifted_wheels:
+        return
+    tce = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "torque_constant_error"}
+    if not any(c.significant for c in tce.values()):
+        return
+    z = {}
+    for w in rows.lifted_wheels:
+        ratio, std = lifted_inertia_ratio(rows.lifted_wheels, w)
+        z[w] = (ratio, (ratio - 1.0) / std)
+    off = [w for w, (_, zw) in z.items() if abs(zw) >= LIFTED_Z]
+    if len(off) != 1:
+        return
+    wheel = off[0]
+    ratio, zw = z[wheel]
+    chosen = tce.get(f"drive {wheel}")
+    if chosen is None or not chosen.significant or (chosen.magnitude.value > 0) != (ratio < 1):
+        return
+    chosen.notes.append(f"the lifted run singles out wheel {wheel}: its B_w is {ratio:.3f} of the other "
+                        f"wheels' (z = {zw:.1f}), as a torque-constant factor {1 / ratio:.3f} gives")
+    for c in tce.values():
+        if c is not chosen and c.significant:
+            c.significant = False
+            c.notes.append(f"the lifted run places the torque-constant error on drive {wheel} (its wheel's "
+                           f"B_w ratio {ratio:.3f}, z = {zw:.1f}); this drive's wheel agrees with the others "
+                           f"(z = {z[c.hypothesis.variant.split()[-1]][1]:.1f})")
+
+
 TORQUE_CONSTANT = tuple(
     Hypothesis("torque_constant_error", f"drive {w}", ("factor_minus_one",), _torque_constant(j),
-               magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"))
+               magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"),
+               resolve=resolve_drive)
     for j, w in enumerate(WHEELS))
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
