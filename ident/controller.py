@@ -43,8 +43,9 @@ class ControllerSettings:
     # (DeadTimeProbe); the default bandwidth has 36° without dead time, so an undelayed vehicle keeps it.
     min_phase_margin: float = 30.0
     # Measure the actuator dead time first and lower the steering bandwidth to it (DeadTimeProbe). Off by
-    # default: low-speed friction rounds the pulse's onset like a dead time (wheel-joint Stribeck friction
-    # read 14 ms on a vehicle with none and cut the bandwidth to 16 rad/s, docs/effects.md).
+    # default: a suite draw recorded with it named more false effects, among them one on a clean vehicle
+    # (docs/effects.md); without it an actuator delay above about 6 ms drives the steering steps into a
+    # limit cycle at the torque limit.
     probe: bool = False
     max_dead_time: float = 0.03  # s, the dead time the gains are designed for when the probe sees none
     # Whether the probe's reading sets the steering bandwidth. A run that must repeat another's campaign

@@ -1,23 +1,30 @@
-"""The dead-time probe: a short steering pulse at rest that measures how long the wheels' torque takes
+"""The dead-time probe: short steering pulses at rest that measure how long the wheels' torque takes
 to act, so the campaign's steering loop is tuned to the vehicle's actuators before the campaign moves.
 
 An actuator delay (current loop, PWM, the drive's set-point pipeline) takes phase out of every loop at
 ω·τ: a 20 ms delay turns the default 45 rad/s steering loop into a limit cycle at the torque limit. The
 delay cannot be read from the bus (torque actual, 0x6077, reports the set-point at once); it shows only
-in the motion. So the probe, at rest in mode 1 (chassis still):
+in the motion. So the probe, at rest in mode 1 (chassis still), for each of two pulse amplitudes a and
+2a (``AMPLITUDES``):
 
 1. commands both steering angles open loop with the nominal feed-forward (21) of a bang-bang
-   acceleration ±``acceleration`` for ``pulse`` s each (Coulomb friction compensated as if sliding);
-   gentle (10 rad/s²): a ±40 rad/s² pulse left the ideal vehicle looking inclined to the diagnosis;
+   acceleration ±amplitude for ``pulse`` s each (Coulomb friction compensated as if sliding);
 2. fits Δα(t) = c·½·max(t − τ, 0)² to the mean steering angle over the accelerating half, τ on whole
-   cycles (the loop's resolution), c by least squares: τ is the dead time (friction rounds the onset, so
-   a long delay reads up to two cycles early);
-3. brings the steering back to where it started with gains designed for ``max_dead_time``, and hands
-   the campaign the steering bandwidth that keeps ``min_phase_margin`` with the measured τ
-   (:func:`qomni.ident.control_design.delay_robust_bandwidth`).
+   cycles (the loop's resolution), c by least squares;
+3. brings the steering back to where it started with gains designed for ``max_dead_time``.
 
-A steering that does not respond (friction above the pulse's torque, no vehicle motion) gives no τ; the
-campaign then keeps the gains designed for ``max_dead_time``: slower tracking, never a limit cycle.
+Low-speed friction rounds the onset like a dead time, and more so the weaker the pulse: its breakaway
+peak holds the joint until the torque's surplus has overcome it; a dead time reads the same at both.
+Friction only adds to the onset, so the stronger pulse's reading is taken: it holds the least friction,
+and a pure delay reads the same. (Extrapolating the two readings to an infinitely
+strong pulse, τ = 2τ(2a) − τ(a), read 2 ms for an 18 ms delay under Stribeck friction in both joints,
+38 and 20 ms at the two pulses, and that campaign ran at the torque limit.) The campaign gets the
+steering bandwidth that keeps ``min_phase_margin`` with τ
+(:func:`qomni.ident.control_design.delay_robust_bandwidth`); docs/effects.md has the readings.
+
+A steering that does not respond to either pulse (friction above the pulse's torque, no vehicle motion)
+gives no τ; the campaign then keeps the gains designed for ``max_dead_time``: slower tracking, never a
+limit cycle.
 """
 from __future__ import annotations
 
@@ -36,6 +43,9 @@ from qomni.datasheet import DataSheet
 MIN_RESPONSE_LSB = 20
 #: Samples the fit keeps after the latest dead time it tries (the curvature needs a few).
 MIN_FIT_CYCLES = 10
+#: Pulse amplitudes as multiples of the probe's ``acceleration``: the weaker first (gentle: a ±40 rad/s²
+#: pulse left the ideal vehicle looking inclined to the diagnosis), then twice that.
+AMPLITUDES = (1.0, 2.0)
 
 
 @dataclass(frozen=True)
@@ -43,11 +53,13 @@ class ProbeResult:
     """What the probe measured and chose.
 
     Attributes:
-        dead_time: s, the fitted τ (None: no response to fit).
-        acceleration: rad/s², the fitted c (the acceleration the pulse really gave).
-        response: rad, mean |Δα| at the end of the accelerating half.
-        fit_rms: rad, RMS of the fit's residual.
+        dead_time: s, τ read by the strongest pulse that moved the steering (None: no response to fit).
+        acceleration: rad/s², the fitted c of the weaker pulse (the acceleration it really gave).
+        response: rad, mean |Δα| at the end of the weaker pulse's accelerating half.
+        fit_rms: rad, RMS of the weaker pulse's fit residual.
         steering_bandwidth: rad/s, the campaign's steering bandwidth from here on.
+        pulses: per pulse, ``{"amplitude": rad/s², "dead_time": s or None, "acceleration": c, "response",
+            "fit_rms"}``.
     """
 
     dead_time: float | None
@@ -55,6 +67,7 @@ class ProbeResult:
     response: float
     fit_rms: float
     steering_bandwidth: float
+    pulses: tuple = ()
 
 
 def fit_dead_time(delta_alpha: np.ndarray, cycle_time: float, max_cycles: int) -> tuple[int, float, float]:
@@ -82,7 +95,8 @@ class DeadTimeProbe:
     Args:
         sheet: the data sheet (nominal parameters for the feed-forward, geometry, drive).
         settings: the campaign controller's settings (bandwidth, phase margin, ``max_dead_time``).
-        acceleration: rad/s² of the pulse; pulse: s of each half; settle: s to return and rest.
+        acceleration: rad/s² of the weaker pulse (``AMPLITUDES`` scale it); pulse: s of each half;
+        settle: s to return and rest after each pulse.
     """
 
     def __init__(self, sheet: DataSheet, settings: ControllerSettings | None = None, acceleration: float = 10.0,
@@ -91,18 +105,21 @@ class DeadTimeProbe:
         d, s = sheet.drive, self.settings
         self.cycles = int(round(pulse / d.cycle_time))
         self.safe_bandwidth = self._bandwidth(s.max_dead_time)
+        self.amplitudes = tuple(acceleration * k for k in AMPLITUDES)
+        self._u, self._return = [], []
         q = np.zeros((2, 9))
         sd = np.ones((2, 2))                                 # sliding forwards: Coulomb compensated
-        sdd = np.array([[acceleration] * 2, [-acceleration] * 2])
-        self._u = dynamics.feedforward(1, q, sd, sdd, sheet.nominal.p, sheet.geometry, d.i_G)  # (2, 4)
-        moved = np.full(2, acceleration * pulse**2)           # where a bang-bang of ±a for T each ends
-        back = quintic_alignment(moved, np.zeros(2), settle, name="probe")
-        self._return = StepController(back, sheet, replace(s, steering_bandwidth=self.safe_bandwidth))
+        for a in self.amplitudes:
+            sdd = np.array([[a] * 2, [-a] * 2])
+            self._u.append(dynamics.feedforward(1, q, sd, sdd, sheet.nominal.p, sheet.geometry, d.i_G))  # (2, 4)
+            moved = np.full(2, a * pulse**2)                  # where a bang-bang of ±a for T each ends
+            back = quintic_alignment(moved, np.zeros(2), settle, name="probe")
+            self._return.append(StepController(back, sheet, replace(s, steering_bandwidth=self.safe_bandwidth)))
         self._return_cycles = int(np.floor(settle / d.cycle_time + 1e-9)) + 1
 
     @property
     def total_cycles(self) -> int:
-        return 2 * self.cycles + self._return_cycles
+        return len(self.amplitudes) * (2 * self.cycles + self._return_cycles)
 
     def _bandwidth(self, dead_time: float) -> float:
         s, d = self.settings, self.sheet.drive
@@ -117,29 +134,41 @@ class DeadTimeProbe:
         Returns:
             (:class:`ProbeResult`, the last measurement).
         """
-        start = np.asarray(measurement.alpha, dtype=float)
-        moved = []
-        for j in range(2 * self.cycles):
-            u = self._u[0] if j < self.cycles else self._u[1]
-            measurement = vehicle.exchange(u)
-            if j < self.cycles:
-                moved.append(np.mean(np.asarray(measurement.alpha) - start))
-            if on_cycle:
-                on_cycle(measurement, u)
-        for j in range(self._return_cycles):
-            u = self._return.command(j * self.sheet.drive.cycle_time, measurement)
-            measurement = vehicle.exchange(u)
-            if on_cycle:
-                on_cycle(measurement, u)
-        return self.evaluate(np.array(moved)), measurement
+        moved_by_pulse = []
+        for u_pulse, back in zip(self._u, self._return):
+            start = np.asarray(measurement.alpha, dtype=float)
+            moved = []
+            for j in range(2 * self.cycles):
+                u = u_pulse[0] if j < self.cycles else u_pulse[1]
+                measurement = vehicle.exchange(u)
+                if j < self.cycles:
+                    moved.append(np.mean(np.asarray(measurement.alpha) - start))
+                if on_cycle:
+                    on_cycle(measurement, u)
+            for j in range(self._return_cycles):
+                u = back.command(j * self.sheet.drive.cycle_time, measurement)
+                measurement = vehicle.exchange(u)
+                if on_cycle:
+                    on_cycle(measurement, u)
+            moved_by_pulse.append(np.array(moved))
+        return self.evaluate(moved_by_pulse), measurement
 
-    def evaluate(self, moved: np.ndarray) -> ProbeResult:
-        """The probe's result from the mean steering angle moved (N,) rad over the accelerating half."""
+    def _reading(self, moved: np.ndarray, amplitude: float) -> dict:
+        """One pulse's fit: its dead time (None: no response to fit), c, response and residual."""
         d = self.sheet.drive
-        lsb = d.steering_lsb
         response = float(abs(moved[-1])) if len(moved) else 0.0
         n, c, rms = fit_dead_time(moved, d.cycle_time, max(self.cycles - MIN_FIT_CYCLES, 0))
-        if response < MIN_RESPONSE_LSB * lsb or c <= 0:
-            return ProbeResult(None, c, response, rms, self.safe_bandwidth)
-        dead_time = n * d.cycle_time
-        return ProbeResult(dead_time, c, response, rms, self._bandwidth(dead_time))
+        responded = response >= MIN_RESPONSE_LSB * d.steering_lsb and c > 0
+        return {"amplitude": amplitude, "dead_time": n * d.cycle_time if responded else None,
+                "acceleration": c, "response": response, "fit_rms": rms}
+
+    def evaluate(self, moved_by_pulse) -> ProbeResult:
+        """The probe's result from the mean steering angle moved over each pulse's accelerating half:
+        a sequence of (N,) rad, one per amplitude (the weaker first)."""
+        readings = [self._reading(np.asarray(m, dtype=float), a) for m, a in zip(moved_by_pulse, self.amplitudes)]
+        weak = readings[0]
+        # the strongest pulse that moved the steering: the least friction in its onset
+        dead_time = next((r["dead_time"] for r in reversed(readings) if r["dead_time"] is not None), None)
+        bandwidth = self.safe_bandwidth if dead_time is None else self._bandwidth(dead_time)
+        return ProbeResult(dead_time, weak["acceleration"], weak["response"], weak["fit_rms"], bandwidth,
+                           tuple(readings))

@@ -184,14 +184,15 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
 def _controller_of(meta: dict):
     """The campaign controller the data's run used (``metadata.json`` ``controller``), so the twin's
     campaign is the same: with the dead-time probe the twin probes as well but keeps the steering
-    bandwidth the data's run recorded. Settings a run did not record keep their defaults."""
+    bandwidth the data's run recorded. Settings a run did not record keep their defaults, except the probe:
+    a run that does not record it has no probe step."""
     from dataclasses import fields
 
     from qomni.ident.controller import ControllerSettings
 
     recorded = meta.get("controller") or {}
     known = {f.name for f in fields(ControllerSettings)}
-    values = {k: v for k, v in recorded.items() if k in known}
+    values = {"probe": False, **{k: v for k, v in recorded.items() if k in known}}  # no record: no probe step
     try:
         return ControllerSettings(**{**values, "probe_retunes": False})
     except TypeError as exc:

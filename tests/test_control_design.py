@@ -64,3 +64,24 @@ def test_a_quick_campaign_at_the_longest_realistic_actuator_delay_completes_insi
     assert row.peak_torque_ratio < 0.9, row
     meta = json.loads((tmp_path / "run" / "metadata.json").read_text())
     assert 0.01 <= meta["probe"]["dead_time"] <= 0.022          # read up to 2 cycles early (docs/effects.md)
+
+
+
+def test_the_probe_takes_the_stronger_pulses_reading_whose_onset_holds_less_friction():
+    from qomni.datasheet import DataSheet
+    from qomni.ident.probe import DeadTimeProbe
+
+    probe = DeadTimeProbe(DataSheet.load())
+    t = TS * np.arange(1, probe.cycles + 1)
+    weak = 0.5 * 6.0 * np.maximum(t - 6 * TS, 0) ** 2         # friction: onset 12 ms at 10 rad/s²
+    strong = 0.5 * 15.0 * np.maximum(t - 3 * TS, 0) ** 2      # and 6 ms at 20 rad/s²
+    result = probe.evaluate([weak, strong])
+    assert [p["dead_time"] for p in result.pulses] == pytest.approx([0.012, 0.006])
+    assert result.dead_time == pytest.approx(0.006) and result.acceleration == pytest.approx(6.0, rel=0.05)
+    delayed = [0.5 * a * np.maximum(t - 5 * TS, 0) ** 2 for a in (9.0, 18.0)]   # 10 ms at both
+    assert probe.evaluate(delayed).dead_time == pytest.approx(0.010)
+    assert probe.evaluate(delayed).steering_bandwidth < probe.evaluate([weak, strong]).steering_bandwidth < 45.0
+    stuck = np.zeros(probe.cycles)                             # friction above the weak pulse's torque
+    assert probe.evaluate([stuck, strong]).dead_time == pytest.approx(0.006)
+    nothing = probe.evaluate([stuck, stuck])
+    assert nothing.dead_time is None and nothing.steering_bandwidth == probe.safe_bandwidth

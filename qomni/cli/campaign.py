@@ -50,7 +50,7 @@ def campaign(
     estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
     torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
     dead_time_probe: bool = typer.Option(
-        False, "--dead-time-probe",
+        False, "--dead-time-probe/--no-dead-time-probe",
         help="First measure the actuator dead time with a short steering pulse at rest and lower the "
              "steering bandwidth to keep a 30° phase margin with it (needed above about 6 ms of delay)."),
 ):
