@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, _linear_magnitude, _project, _torque_only
+from .base import Hypothesis, Magnitude, _ci, _linear_magnitude, _project, _torque_only
 
 
 @_torque_only
@@ -40,8 +40,7 @@ def _first_moment(theta, cov, nonlinear, sheet) -> Magnitude:
     size = float(np.hypot(*s))
     direction = s / size if size > 0 else np.array([1.0, 0.0])
     sd = math.sqrt(max(float(direction @ np.asarray(cov)[:2, :2] @ direction), 0.0))
-    return Magnitude(size, (size - 1.96 * sd, size + 1.96 * sd), "kg m",
-                     "first moment of the mass off the chassis centre")
+    return Magnitude(size, _ci(size, sd), "kg m", "first moment of the mass off the chassis centre")
 
 
 #: The payload against a model identified on the same data: the centre-of-mass offset's first moments

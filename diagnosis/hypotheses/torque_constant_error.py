@@ -18,6 +18,11 @@ from ..channels import ChannelData
 from .base import Hypothesis, RuleRows, _input_torque, _linear_magnitude, _project, _torque_only
 
 
+def _variant(wheel: str) -> str:
+    """The variant label of the hypothesis for ``wheel``'s drive."""
+    return f"drive {wheel}"
+
+
 def _torque_constant(j: int):
     @_torque_only
     def columns(ch: ChannelData, _):
@@ -57,7 +62,9 @@ def resolve_drive(candidates: list, rows: RuleRows) -> None:
     Without a lifted run, or where it shows no wheel or several off, nothing changes."""
     if not rows.lifted_wheels:
         return
-    tce = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "torque_constant_error"}
+    variants = {_variant(w): w for w in WHEELS}
+    tce = {variants[c.hypothesis.variant]: c for c in candidates
+           if c.hypothesis.name == "torque_constant_error" and c.hypothesis.variant in variants}
     if not any(c.significant for c in tce.values()):
         return
     z = {}
@@ -69,21 +76,21 @@ def resolve_drive(candidates: list, rows: RuleRows) -> None:
         return
     wheel = off[0]
     ratio, zw = z[wheel]
-    chosen = tce.get(f"drive {wheel}")
+    chosen = tce.get(wheel)
     if chosen is None or not chosen.significant or (chosen.magnitude.value > 0) != (ratio < 1):
         return
     chosen.notes.append(f"the lifted run singles out wheel {wheel}: its B_w is {ratio:.3f} of the other "
                         f"wheels' (z = {zw:.1f}), as a torque-constant factor {1 / ratio:.3f} gives")
-    for c in tce.values():
+    for w, c in tce.items():
         if c is not chosen and c.significant:
             c.significant = False
             c.notes.append(f"the lifted run places the torque-constant error on drive {wheel} (its wheel's "
                            f"B_w ratio {ratio:.3f}, z = {zw:.1f}); this drive's wheel agrees with the others "
-                           f"(z = {z[c.hypothesis.variant.split()[-1]][1]:.1f})")
+                           f"(z = {z[w][1]:.1f})")
 
 
 TORQUE_CONSTANT = tuple(
-    Hypothesis("torque_constant_error", f"drive {w}", ("factor_minus_one",), _torque_constant(j),
+    Hypothesis("torque_constant_error", _variant(w), ("factor_minus_one",), _torque_constant(j),
                magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"),
                resolve=resolve_drive)
     for j, w in enumerate(WHEELS))
