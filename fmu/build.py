@@ -37,7 +37,8 @@ class FmuExportError(RuntimeError):
     """Building the FMU failed (compiler missing or compilation error); the message has the details."""
 
 
-_C_TYPE = {"Float64": "FMU_FLOAT64", "Int32": "FMU_INT32", "Boolean": "FMU_BOOLEAN"}
+_C_TYPE = {"Float64": "FMU_FLOAT64", "Int32": "FMU_INT32", "Boolean": "FMU_BOOLEAN", "Binary": "FMU_BINARY",
+           "Clock": "FMU_CLOCK"}
 _C_CAUSALITY = {"independent": "FMU_INDEPENDENT", "parameter": "FMU_PARAMETER", "input": "FMU_INPUT",
                 "output": "FMU_OUTPUT"}
 
@@ -54,7 +55,8 @@ def _c_value(v: Variable) -> str:
     return repr(float(v.start or 0.0))
 
 
-def config_h(variables: list[Variable], identifier: str, token: str, prefix: str, n_states: int) -> str:
+def config_h(variables: list[Variable], identifier: str, token: str, prefix: str, n_states: int,
+             bus: bool = False) -> str:
     by_type = {t: [v for v in variables if v.type == t and v.causality != "independent"]
                for t in ("Float64", "Int32", "Boolean")}
     lines = [
@@ -71,6 +73,8 @@ def config_h(variables: list[Variable], identifier: str, token: str, prefix: str
         f"#define N_INT32 {len(by_type['Int32'])}",
         f"#define N_BOOLEAN {len(by_type['Boolean'])}",
         f"#define N_STATES {int(n_states)}", "",
+        *(["/* the model has a bus terminal: Event Mode, Clocks, Binary (fmu_bus_* in fmu_instance.h) */",
+           "#define FMU_BUS 1", ""] if bus else []),
         "/* storage index of the first variable of each contiguous group (used by model.c) */",
     ]
     for v in variables:
@@ -143,6 +147,7 @@ def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, varia
     files: dict[str, str] = {api: (c_dir / api).read_text()}
     files.update({name: (c_dir / name).read_text() for name in GENERIC_SOURCES})
     files.update({name: (c_dir / spec.model_dir / name).read_text() for name in spec.model_sources})
+    files.update({Path(path).name: (c_dir / path).read_text() for path in spec.shared_sources})
     files.update(spec.generate().files())
     files.update({name: (c_dir / "include" / name).read_text() for name in HEADERS[fmi_version]})
     c_files = sorted(name for name in files if name.endswith(".c"))
@@ -152,13 +157,14 @@ def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, varia
                               "variables": [(v.name, v.vr, v.start) for v in variables]}, sort_keys=True)
     token = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "qomni-fmu:" + hashlib.sha256(
         fingerprint.encode()).hexdigest())) + "}"
-    files["config.h"] = config_h(variables, identifier, token, spec.config_prefix, spec.n_states)
+    files["config.h"] = config_h(variables, identifier, token, spec.config_prefix, spec.n_states, spec.bus)
 
     if fmi_version == 2:
         md = model_description_fmi2(variables, identifier, token, description, tool, step, c_files,
                                     spec.dependencies)
     else:
-        md = model_description_fmi3(variables, identifier, token, description, tool, step, spec.dependencies)
+        md = model_description_fmi3(variables, identifier, token, description, tool, step, spec.dependencies,
+                                    event_mode=spec.bus)
     with tempfile.TemporaryDirectory(prefix="qomni_fmu_") as tmp:
         root = Path(tmp)
         src = root / "sources"
@@ -168,6 +174,9 @@ def package(spec: ModelSpec, out: Path, identifier: str, fmi_version: int, varia
         if fmi_version == 3:
             (src / "buildDescription.xml").write_bytes(xml_bytes(build_description_fmi3(identifier, c_files)))
         (root / "modelDescription.xml").write_bytes(xml_bytes(md))
+        for name, data in spec.extra_files(variables).items():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            (root / name).write_bytes(data)
         if targets is None:
             compile_binary(src, c_files, root / "binaries" / BINARY_DIRECTORY[fmi_version] / f"{identifier}.so",
                            compiler)

@@ -29,20 +29,23 @@ ALPHA, ALPHA_DOT = REAL_OUTPUTS[6:8], REAL_OUTPUTS[8:10]
 
 
 class FmuSlave:
-    """One instance of a Co-Simulation FMU (FMI 2.0 or 3.0) through fmpy, in Step Mode after construction.
+    """One instance of a Co-Simulation FMU (FMI 2.0 or 3.0) through fmpy, in Step Mode after construction
+    (Event Mode with ``event_mode``).
 
     Args:
         path: the ``.fmu`` file (or an extracted FMU directory).
         start_values: {variable name: value} set before initialization (parameters, inputs).
         start_time: s.
         instance_name: the FMI instance name.
+        event_mode: FMI 3.0 only: instantiate with eventModeUsed (a model with a bus terminal); the instance
+            is then in Event Mode after construction.
     Raises:
         ValueError: an unknown variable name. fmpy.fmi1.FMICallException: an FMI call failed (message
             logged by the FMU on stdout).
     """
 
     def __init__(self, path: str | os.PathLike, start_values: dict | None = None, start_time: float = 0.0,
-                 instance_name: str = "plant"):
+                 instance_name: str = "plant", event_mode: bool = False):
         from fmpy import extract, read_model_description
         from fmpy.fmi2 import FMU2Slave
         from fmpy.fmi3 import FMU3Slave
@@ -60,7 +63,10 @@ class FmuSlave:
         cls = FMU2Slave if self.version == 2 else FMU3Slave
         self.fmu = cls(guid=md.guid, unzipDirectory=directory, modelIdentifier=md.coSimulation.modelIdentifier,
                        instanceName=instance_name)
-        self.fmu.instantiate()
+        if event_mode:
+            self.fmu.instantiate(eventModeUsed=True)
+        else:
+            self.fmu.instantiate()
         if self.version == 2:
             self.fmu.setupExperiment(startTime=start_time)
             self.fmu.enterInitializationMode()

@@ -72,7 +72,7 @@ def model_description_fmi2(variables, identifier, token, description, tool, step
 
 
 def model_description_fmi3(variables, identifier, token, description, tool, step_size,
-                           dependencies: tuple[str, ...]) -> ET.Element:
+                           dependencies: tuple[str, ...], event_mode: bool = False) -> ET.Element:
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": identifier, "instantiationToken": token,
         "description": description, "generationTool": tool, "variableNamingConvention": "structured"})
@@ -80,21 +80,26 @@ def model_description_fmi3(variables, identifier, token, description, tool, step
         "modelIdentifier": identifier, "canHandleVariableCommunicationStepSize": "true",
         "canGetAndSetFMUState": "true", "canSerializeFMUState": "true",
         "providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true",
-        "hasEventMode": "false", "providesIntermediateUpdate": "false",
+        "hasEventMode": "true" if event_mode else "false", "providesIntermediateUpdate": "false",
         "canReturnEarlyAfterIntermediateUpdate": "false", "maxOutputDerivativeOrder": "0"})
     _unit_definitions(root, variables)
     _log_categories(root)
     ET.SubElement(root, "DefaultExperiment", startTime="0.0", stopTime="1.0", stepSize=repr(float(step_size)))
     mv = ET.SubElement(root, "ModelVariables")
     for v in variables:  # FMI 3: all attributes on the typed variable element (FMI 3.0 §2.4.7)
-        ET.SubElement(mv, v.type, {**_variable_attrs(v), **_value_attrs(v)})
+        if v.type == "Binary":  # start values of Binary are child elements (FMI 3.0 §2.4.7.6)
+            element = ET.SubElement(mv, v.type, {**_variable_attrs(v), **dict(v.attributes)})
+            if v.start is not None:
+                ET.SubElement(element, "Start", value=str(v.start))
+            continue
+        ET.SubElement(mv, v.type, {**_variable_attrs(v), **_value_attrs(v), **dict(v.attributes)})
     ms = ET.SubElement(root, "ModelStructure")
     deps = " ".join(str(v.vr) for v in _dependencies(variables, dependencies))
     for v in variables:
         if v.causality == "output":
             ET.SubElement(ms, "Output", valueReference=str(v.vr), dependencies=deps)
     for v in variables:
-        if v.causality == "output":
+        if v.causality == "output" and "clocks" not in dict(v.attributes):  # clocked: known at ticks only
             ET.SubElement(ms, "InitialUnknown", valueReference=str(v.vr))
     return root
 
@@ -103,7 +108,7 @@ def _variable_attrs(v) -> dict[str, str]:
     """Attributes every FMI version puts on the variable element itself."""
     attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description,
              "causality": v.causality, "variability": v.variability}
-    if v.causality == "output":
+    if v.causality == "output" and v.type != "Clock":
         attrs["initial"] = "calculated"
     return attrs
 

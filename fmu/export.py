@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from .build import FmuExportError, package
 from .feedforward_spec import DEFAULT_EPS, FEEDFORWARD
+from .plant_can_spec import PLANT_CAN
 from .plant_spec import PLANT
 from .spec import ModelSpec
 
@@ -22,7 +23,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from qomni.ident.result import IdentificationResult
 
 #: The exportable models by the CLI's ``--kind``.
-MODELS: dict[str, ModelSpec] = {spec.kind: spec for spec in (FEEDFORWARD, PLANT)}
+MODELS: dict[str, ModelSpec] = {spec.kind: spec for spec in (FEEDFORWARD, PLANT, PLANT_CAN)}
 
 
 def _identification_values(identification) -> tuple[dict[str, float], dict[str, float]]:
@@ -75,16 +76,21 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
         ``sources/buildDescription.xml``). The GUID / instantiationToken is a UUID derived from the
         content (same inputs, same token), checked by fmi2Instantiate / fmi3InstantiateCoSimulation.
     Raises:
-        ValueError: fmi_version not 2 or 3, ``out`` without the ``.fmu`` suffix, bad identifier,
+        ValueError: fmi_version not 2 or 3 (or not one of ``spec.fmi_versions``: the plant-can model is
+            FMI 3.0 only), ``out`` without the ``.fmu`` suffix, bad identifier,
             non-finite parameters, i_G or eps <= 0.
         TypeError: ``identification`` of a wrong type.
         qomni.ident.rundir.RunDirectoryError: no identification.json at the given path.
         FmuExportError: compilation failed, an unknown platform, or ziglang missing for ``platforms``.
     """
     out, identifier = _resolve_out(out, fmi_version, model_identifier, spec.default_identifier)
+    if fmi_version not in spec.fmi_versions:
+        raise ValueError(f"the {spec.kind} model is exported as FMI {' or '.join(map(str, spec.fmi_versions))}.0 "
+                         f"only, not FMI {fmi_version}.0")
     values, std = _identification_values(identification)
-    variables = _with_limits(spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std),
-                             spec.input_limits(datasheet))
+    variables = spec.with_datasheet(spec.variables(values, datasheet.geometry, datasheet.drive.i_G, eps, std),
+                                    datasheet)
+    variables = _with_limits(variables, spec.input_limits(datasheet))
     return package(spec, out, identifier, fmi_version, variables, spec.description.format(name=datasheet.name),
                    datasheet.drive.cycle_time, compiler,
                    None if platforms is None else tuple(platforms))
@@ -101,6 +107,13 @@ def export_plant_fmu(identification, datasheet, out, fmi_version: int = 2, **kwa
     (ModelStructure: ``dependencies=""``), any communication step size > 0 is accepted (internal sub-steps,
     see parameter ``max_step``)."""
     return export_fmu(PLANT, identification, datasheet, out, fmi_version, **kwargs)
+
+
+def export_plant_can_fmu(identification, datasheet, out, **kwargs) -> Path:
+    """:func:`export_fmu` of the plant behind its CAN bus (FMI 3.0, default identifier ``qomni_plant_can``,
+    :mod:`qomni.fmu.plant_can_spec`): CAN frames in and out through the FMI-LS-BUS terminal ``CAN``, the
+    drives' and encoders' data from the data sheet."""
+    return export_fmu(PLANT_CAN, identification, datasheet, out, 3, **kwargs)
 
 
 def _with_limits(variables: list, limits: dict[str, tuple[float, float]]) -> list:
@@ -128,4 +141,5 @@ def _resolve_out(out, fmi_version: int, model_identifier: str | None, default: s
     return out, _check_identifier(model_identifier or (out.stem if stem_ok else default))
 
 
-__all__ = ["MODELS", "FmuExportError", "export_fmu", "export_feedforward_fmu", "export_plant_fmu"]
+__all__ = ["MODELS", "FmuExportError", "export_fmu", "export_feedforward_fmu", "export_plant_fmu",
+           "export_plant_can_fmu"]

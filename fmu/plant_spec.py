@@ -16,7 +16,7 @@ from .feedforward_spec import DEFAULT_EPS, feedforward_variables
 from .spec import ModelSpec
 from .variables import Variable, number_variables
 
-PLANT_SOURCES = ("plant.c", "plant.h", "model.c")
+PLANT_SOURCES = ("plant.c", "plant.h", "plant_fmu.c", "plant_fmu.h", "model.c")
 PLANT_N_STATES = 13
 """Doubles of the plant's internal state (fmu/c/plant/plant.h, QOMNI_PLANT_N_STATE)."""
 

@@ -29,6 +29,14 @@ class ModelSpec:
         summary: one line for the CLI.
         input_limits: ``(datasheet) -> {input name: (min, max)}``, the inputs the vehicle's physics bounds
             (declared min/max of the variable; the FMU refuses a value set outside it). Default none.
+        shared_sources: C files of other models the model also compiles (paths under ``fmu/c``, packaged
+            under their file names).
+        bus: the model has an FMI-LS-BUS bus terminal (``FMU_BUS`` in ``config.h``: Event Mode, Clocks and
+            Binary variables through its ``fmu_bus_*`` functions; FMI 3.0 only).
+        fmi_versions: the FMI versions the model can be exported as.
+        with_datasheet: ``(variables, datasheet) -> variables``, start values taken from the data sheet.
+        extra_files: ``(variables) -> {path in the FMU: bytes}``, files beyond the model description,
+            binaries and sources (FMI 3.0: ``terminalsAndIcons/``, ``extra/``).
     """
 
     kind: str
@@ -43,3 +51,9 @@ class ModelSpec:
     description: str
     summary: str
     input_limits: Callable[[Any], dict[str, tuple[float, float]]] = field(default=lambda datasheet: {})
+    shared_sources: tuple[str, ...] = ()
+    bus: bool = False
+    fmi_versions: tuple[int, ...] = (2, 3)
+    with_datasheet: Callable[[list[Variable], Any], list[Variable]] = field(
+        default=lambda variables, datasheet: variables)
+    extra_files: Callable[[list[Variable]], dict[str, bytes]] = field(default=lambda variables: {})

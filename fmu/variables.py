@@ -17,10 +17,12 @@ class Variable:
     """One scalar FMU variable.
 
     ``type`` is the FMI 3 type name (``Float64``, ``Int32``, ``Boolean``; FMI 2: Real, Integer,
-    Boolean). ``group``: name of the ``FF_<GROUP>`` (plant: ``PL_<GROUP>``) macro in ``config.h`` that holds the storage index
+    Boolean; FMI 3 only: ``Binary``, ``Clock``, whose storage index is their value reference). ``group``: name of the ``FF_<GROUP>`` (plant: ``PL_<GROUP>``) macro in ``config.h`` that holds the storage index
     of the group's first variable (groups are contiguous). ``vr`` is the value reference, ``index`` the
     position in the value array of its type (both assigned by :func:`number_variables`). ``min``/``max``: the
     declared range (FMI 2.0 §2.2.7, FMI 3.0 §2.4.7.4); the FMU refuses a Float64 input set outside it.
+    ``attributes``: further XML attributes of the FMI 3 variable element as (name, value) pairs (a Binary's
+    ``mimeType``, ``maxSize``, ``clocks``; a Clock's ``intervalVariability``).
     """
 
     name: str
@@ -35,10 +37,12 @@ class Variable:
     max: float | int | None = None
     vr: int = -1
     index: int = -1
+    attributes: tuple[tuple[str, str], ...] = ()
 
 
 def number_variables(variables: list[Variable]) -> list[Variable]:
-    """Assign value references (list order) and storage indices (per type); check finite start values."""
+    """Assign value references (list order) and storage indices (per type; Binary and Clock: the value
+    reference); check finite start values."""
     counters = {"Float64": 0, "Int32": 0, "Boolean": 0}
     numbered = []
     for vr, v in enumerate(variables):
@@ -46,6 +50,9 @@ def number_variables(variables: list[Variable]) -> list[Variable]:
             raise ValueError(f"{v.name} must be finite, got {v.start!r}")
         if v.causality == "independent":
             numbered.append(replace(v, vr=vr, index=0))
+            continue
+        if v.type in ("Binary", "Clock"):          # handled by the model, addressed by value reference
+            numbered.append(replace(v, vr=vr, index=vr))
             continue
         numbered.append(replace(v, vr=vr, index=counters[v.type]))
         counters[v.type] += 1

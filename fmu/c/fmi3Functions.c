@@ -1,9 +1,11 @@
 /* fmi3Functions.c -- generic FMI 3.0 Co-Simulation API layer of the qomni FMUs.
  *
  * Exports every function of fmi3Functions.h (FMI 3.0, section 2.3 common functions, section 4
- * Co-Simulation without event mode). Model Exchange (section 3), Scheduled Execution (section 5),
- * clocks, configuration mode, event mode, derivatives and the variable types this model does not have
- * log an error and return fmi3Error (the instantiate functions of other interfaces return NULL).
+ * Co-Simulation). A model with a bus (FMU_BUS in config.h) has Event Mode (section 4.2.3), triggered
+ * Clocks and clocked Binary variables, handled by its fmu_bus_* functions; other models have no event
+ * mode. Model Exchange (section 3), Scheduled Execution (section 5), configuration mode and the variable
+ * types a model does not have log an error and return fmi3Error (the instantiate functions of other
+ * interfaces return NULL).
  * The model behind this layer is described by config.h and model.c (see fmu_instance.h).
  */
 #include <stdio.h>
@@ -66,20 +68,24 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3IntermediateUpdateCallback intermediateUpdate) {
     (void)resourcePath, (void)visible, (void)earlyReturnAllowed, (void)requiredIntermediateVariables;
     (void)intermediateUpdate;
+#ifndef FMU_BUS
     if (eventModeUsed) {
         refuse(instanceName, instanceEnvironment, logMessage,
                "fmi3InstantiateCoSimulation: eventModeUsed = true, but the FMU has no event mode "
                "(hasEventMode=\"false\")");
         return NULL;
     }
+#endif
     if (nRequiredIntermediateVariables > 0) {
         refuse(instanceName, instanceEnvironment, logMessage,
                "fmi3InstantiateCoSimulation: intermediate variable access is not provided "
                "(providesIntermediateUpdate=\"false\")");
         return NULL;
     }
-    return fmu_instantiate(instanceName, instantiationToken, logger3, (FmuCallback)logMessage,
-                           instanceEnvironment, loggingOn, NULL, NULL);
+    FmuInstance *created = fmu_instantiate(instanceName, instantiationToken, logger3, (FmuCallback)logMessage,
+                                           instanceEnvironment, loggingOn, NULL, NULL);
+    if (created) created->event_mode_used = eventModeUsed;
+    return created;
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
@@ -108,7 +114,11 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) { return status3(fmu_exit_initialization(INSTANCE)); }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
+#ifdef FMU_BUS
+    return status3(fmu_enter_event_mode(INSTANCE));
+#else
     return status3(fmu_unsupported(INSTANCE, "fmi3EnterEventMode (hasEventMode=\"false\")"));
+#endif
 }
 
 fmi3Status fmi3Terminate(fmi3Instance instance) { return status3(fmu_terminate(INSTANCE)); }
@@ -187,27 +197,45 @@ NO_VARIABLES_SET(String, fmi3String)
 
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, size_t valueSizes[], fmi3Binary values[], size_t nValues) {
-    (void)valueReferences, (void)valueSizes, (void)values, (void)nValues;
+    if (check_n(INSTANCE, nValueReferences, nValues, "fmi3GetBinary") != fmi3OK) return fmi3Error;
+#ifdef FMU_BUS
+    return status3(fmu_bus_get_binary(INSTANCE, valueReferences, nValueReferences, valueSizes, values));
+#else
+    (void)valueSizes, (void)values;
     return status3(fmu_no_variables_of_type(INSTANCE, "Binary", nValueReferences));
+#endif
 }
 
 fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, const size_t valueSizes[], const fmi3Binary values[],
                          size_t nValues) {
-    (void)valueReferences, (void)valueSizes, (void)values, (void)nValues;
+    if (check_n(INSTANCE, nValueReferences, nValues, "fmi3SetBinary") != fmi3OK) return fmi3Error;
+#ifdef FMU_BUS
+    return status3(fmu_bus_set_binary(INSTANCE, valueReferences, nValueReferences, valueSizes, values));
+#else
+    (void)valueSizes, (void)values;
     return status3(fmu_no_variables_of_type(INSTANCE, "Binary", nValueReferences));
+#endif
 }
 
 fmi3Status fmi3GetClock(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                         size_t nValueReferences, fmi3Clock values[]) {
-    (void)valueReferences, (void)values;
+#ifdef FMU_BUS
+    return status3(fmu_bus_get_clock(INSTANCE, valueReferences, nValueReferences, values));
+#else
+    (void)values;
     return status3(fmu_no_variables_of_type(INSTANCE, "Clock", nValueReferences));
+#endif
 }
 
 fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                         size_t nValueReferences, const fmi3Clock values[]) {
-    (void)valueReferences, (void)values;
+#ifdef FMU_BUS
+    return status3(fmu_bus_set_clock(INSTANCE, valueReferences, nValueReferences, values));
+#else
+    (void)values;
     return status3(fmu_no_variables_of_type(INSTANCE, "Clock", nValueReferences));
+#endif
 }
 
 /* ---- 2.3.6 variable dependencies (not provided; the static ModelStructure is complete) ------------ */
@@ -345,9 +373,20 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
                                     fmi3Boolean *nominalsOfContinuousStatesChanged,
                                     fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined,
                                     fmi3Float64 *nextEventTime) {
+#ifdef FMU_BUS
+    FmuStatus s = fmu_bus_update(INSTANCE);
+    if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
+    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (nominalsOfContinuousStatesChanged) *nominalsOfContinuousStatesChanged = fmi3False;
+    if (valuesOfContinuousStatesChanged) *valuesOfContinuousStatesChanged = fmi3False;
+    if (nextEventTimeDefined) *nextEventTimeDefined = fmi3False;
+    if (nextEventTime) *nextEventTime = 0.0;
+    return status3(s);
+#else
     (void)discreteStatesNeedUpdate, (void)terminateSimulation, (void)nominalsOfContinuousStatesChanged;
     (void)valuesOfContinuousStatesChanged, (void)nextEventTimeDefined, (void)nextEventTime;
     return status3(fmu_unsupported(INSTANCE, "fmi3UpdateDiscreteStates (no event mode)"));
+#endif
 }
 
 /* ---- section 3 Model Exchange (not supported) ------------------------------------------------------ */
@@ -407,8 +446,12 @@ fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nConti
 
 /* ---- section 4 Co-Simulation ------------------------------------------------------------------------ */
 fmi3Status fmi3EnterStepMode(fmi3Instance instance) {
+#ifdef FMU_BUS
+    return status3(fmu_enter_step_mode(INSTANCE));
+#else
     return status3(fmu_unsupported(INSTANCE, "fmi3EnterStepMode (no event mode: ExitInitializationMode "
                                              "enters Step Mode)"));
+#endif
 }
 
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueReference valueReferences[],
@@ -428,6 +471,11 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     if (earlyReturn) *earlyReturn = fmi3False;
     FmuStatus s = fmu_do_step(INSTANCE, currentCommunicationPoint, communicationStepSize);
     if (lastSuccessfulTime && instance) *lastSuccessfulTime = INSTANCE->values.time;
+#ifdef FMU_BUS
+    /* a triggered Tx_Clock ticks at the end of the step when Tx data wait (FMI-LS-BUS 4.x, Tx Clocks) */
+    if (eventHandlingNeeded && instance && s == FMU_OK)
+        *eventHandlingNeeded = INSTANCE->event_mode_used && fmu_bus_pending(INSTANCE);
+#endif
     return status3(s);
 }
 

@@ -12,7 +12,7 @@ static const double fmu_float64_start[FMU_ARRAY_SIZE(N_FLOAT64)] = FMU_FLOAT64_S
 static const int32_t fmu_int32_start[FMU_ARRAY_SIZE(N_INT32)] = FMU_INT32_START;
 static const bool fmu_boolean_start[FMU_ARRAY_SIZE(N_BOOLEAN)] = FMU_BOOLEAN_START;
 
-static const char *const type_names[] = {"Float64", "Int32", "Boolean"};
+static const char *const type_names[] = {"Float64", "Int32", "Boolean", "Binary", "Clock"};
 
 /* --- memory and logging --------------------------------------------------------------------------- */
 void *fmu_allocate(FmuInstance *instance, size_t size) {
@@ -56,6 +56,7 @@ static const char *mode_name(FmuMode mode) {
     case FMU_MODE_INITIALIZATION: return "Initialization Mode";
     case FMU_MODE_STEP: return "Step Mode";
     case FMU_MODE_TERMINATED: return "Terminated";
+    case FMU_MODE_EVENT: return "Event Mode";
     }
     return "unknown";
 }
@@ -184,6 +185,23 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance) {
     FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION, "ExitInitializationMode");
     if (s != FMU_OK) return s;
     if (initialize_if_needed(instance) != FMU_OK) return FMU_ERROR;
+    instance->mode = instance->event_mode_used ? FMU_MODE_EVENT : FMU_MODE_STEP;
+#ifdef FMU_BUS
+    if (fmu_bus_start(instance) != FMU_OK) return FMU_ERROR;
+#endif
+    return FMU_OK;
+}
+
+FmuStatus fmu_enter_event_mode(FmuInstance *instance) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_STEP, "EnterEventMode");
+    if (s != FMU_OK) return s;
+    instance->mode = FMU_MODE_EVENT;
+    return FMU_OK;
+}
+
+FmuStatus fmu_enter_step_mode(FmuInstance *instance) {
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_EVENT, "EnterStepMode");
+    if (s != FMU_OK) return s;
     instance->mode = FMU_MODE_STEP;
     return FMU_OK;
 }
@@ -205,7 +223,7 @@ FmuStatus fmu_do_step(FmuInstance *instance, double t, double h) {
 }
 
 FmuStatus fmu_terminate(FmuInstance *instance) {
-    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_STEP, "Terminate");
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_RUNNING, "Terminate");
     if (s != FMU_OK) return s;
     instance->mode = FMU_MODE_TERMINATED;
     return FMU_OK;
@@ -265,8 +283,9 @@ static FmuStatus check_settable(FmuInstance *instance, const FmuVariable *v) {
     case FMU_INPUT:
         return FMU_OK;
     case FMU_PARAMETER:
-        if (v->tunable || instance->mode != FMU_MODE_STEP) return FMU_OK;
-        return fmu_error(instance, "parameter '%s' is fixed and cannot be set in Step Mode", v->name);
+        if (v->tunable || !(instance->mode & FMU_MODE_RUNNING)) return FMU_OK;
+        return fmu_error(instance, "parameter '%s' is fixed and cannot be set in %s", v->name,
+                         mode_name(instance->mode));
     case FMU_OUTPUT:
         return fmu_error(instance, "'%s' is an output and cannot be set", v->name);
     case FMU_INDEPENDENT:
@@ -322,7 +341,7 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const uint32_t vr[], size_t n, 
             return FMU_ERROR;
         instance->values.float64[v->index] = value[i];
         instance->values.dirty = true;
-        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
+        if (v->causality == FMU_PARAMETER && !(instance->mode & FMU_MODE_RUNNING)) instance->values.initialized = false;
     }
     return FMU_OK;
 }
@@ -334,7 +353,7 @@ FmuStatus fmu_set_int32(FmuInstance *instance, const uint32_t vr[], size_t n, co
         if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
         instance->values.int32[v->index] = value[i];
         instance->values.dirty = true;
-        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
+        if (v->causality == FMU_PARAMETER && !(instance->mode & FMU_MODE_RUNNING)) instance->values.initialized = false;
     }
     return FMU_OK;
 }
@@ -346,7 +365,7 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const uint32_t vr[], size_t n, 
         if (!v || check_settable(instance, v) != FMU_OK) return FMU_ERROR;
         instance->values.boolean[v->index] = value[i];
         instance->values.dirty = true;
-        if (v->causality == FMU_PARAMETER && instance->mode != FMU_MODE_STEP) instance->values.initialized = false;
+        if (v->causality == FMU_PARAMETER && !(instance->mode & FMU_MODE_RUNNING)) instance->values.initialized = false;
     }
     return FMU_OK;
 }
@@ -372,7 +391,7 @@ static const FmuVariable *lookup_causality(FmuInstance *instance, uint32_t vr, F
 FmuStatus fmu_derivatives(FmuInstance *instance, const uint32_t unknowns[], size_t n_unknown,
                           const uint32_t knowns[], size_t n_known, const double seed[], size_t n_seed,
                           double sensitivity[], size_t n_sensitivity, bool adjoint, const char *function) {
-    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_STEP, function);
+    FmuStatus s = fmu_require_mode(instance, FMU_MODE_INITIALIZATION | FMU_MODE_RUNNING, function);
     if (s != FMU_OK) return s;
     size_t want_seed = adjoint ? n_unknown : n_known, want_sensitivity = adjoint ? n_known : n_unknown;
     if (n_seed != want_seed || n_sensitivity != want_sensitivity)

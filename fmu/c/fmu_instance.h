@@ -29,7 +29,9 @@
 /* Same numbering as fmi2Status and fmi3Status (OK, Warning, Discard, Error, Fatal). */
 typedef enum { FMU_OK = 0, FMU_WARNING = 1, FMU_DISCARD = 2, FMU_ERROR = 3, FMU_FATAL = 4 } FmuStatus;
 
-typedef enum { FMU_FLOAT64 = 0, FMU_INT32 = 1, FMU_BOOLEAN = 2 } FmuType;
+/* Binary and Clock variables exist only in a model with a bus (FMU_BUS in config.h); the model handles
+ * them (index: unused). */
+typedef enum { FMU_FLOAT64 = 0, FMU_INT32 = 1, FMU_BOOLEAN = 2, FMU_BINARY = 3, FMU_CLOCK = 4 } FmuType;
 
 typedef enum { FMU_INDEPENDENT = 0, FMU_PARAMETER = 1, FMU_INPUT = 2, FMU_OUTPUT = 3 } FmuCausality;
 
@@ -57,6 +59,10 @@ typedef struct {
 #define N_STATES 0
 #endif
 
+#ifdef FMU_BUS
+#include "bus_state.h" /* the model's FmuBusState: plain data, part of the FMU state */
+#endif
+
 #define FMU_ARRAY_SIZE(n) ((n) > 0 ? (n) : 1)
 
 /* All variable values of one instance (also the content of an FMU state). */
@@ -66,6 +72,9 @@ typedef struct {
     int32_t int32[FMU_ARRAY_SIZE(N_INT32)];
     bool boolean[FMU_ARRAY_SIZE(N_BOOLEAN)];
     double state[FMU_ARRAY_SIZE(N_STATES)]; /* the model's internal state */
+#ifdef FMU_BUS
+    FmuBusState bus; /* the model's bus side (nodes, Rx/Tx buffers, clocks) */
+#endif
     bool dirty;       /* outputs must be recalculated before they are read */
     bool initialized; /* state set from the current parameters */
 } FmuValues;
@@ -87,10 +96,14 @@ typedef enum {
     FMU_MODE_INSTANTIATED = 1,
     FMU_MODE_INITIALIZATION = 2,
     FMU_MODE_STEP = 4,
-    FMU_MODE_TERMINATED = 8
+    FMU_MODE_TERMINATED = 8,
+    FMU_MODE_EVENT = 16 /* FMI 3.0 Co-Simulation with eventModeUsed (section 4.2.3): models with a bus only */
 } FmuMode;
 
-#define FMU_MODE_ANY (FMU_MODE_INSTANTIATED | FMU_MODE_INITIALIZATION | FMU_MODE_STEP | FMU_MODE_TERMINATED)
+#define FMU_MODE_ANY                                                                                     \
+    (FMU_MODE_INSTANTIATED | FMU_MODE_INITIALIZATION | FMU_MODE_STEP | FMU_MODE_TERMINATED | FMU_MODE_EVENT)
+/* The modes after initialization in which the model runs (parameters fixed, outputs current). */
+#define FMU_MODE_RUNNING (FMU_MODE_STEP | FMU_MODE_EVENT)
 
 /* Any function pointer (the importer's FMI log callback is stored as this and cast back). */
 typedef void (*FmuCallback)(void);
@@ -107,6 +120,7 @@ typedef struct {
     FmuMode mode;
     FmuValues values;
     bool log_calls; /* debug logging (category logCalls) on */
+    bool event_mode_used; /* FMI 3.0: ExitInitializationMode enters Event Mode, not Step Mode */
     FmuLogger logger;
     FmuCallback callback;
     void *environment;
@@ -153,6 +167,9 @@ FmuStatus fmu_enter_initialization(FmuInstance *instance, double start_time);
 FmuStatus fmu_exit_initialization(FmuInstance *instance);
 FmuStatus fmu_do_step(FmuInstance *instance, double current_communication_point, double step_size);
 FmuStatus fmu_terminate(FmuInstance *instance);
+/* FMI 3.0 section 4.2.3 (models with a bus only): Step Mode -> Event Mode and back. */
+FmuStatus fmu_enter_event_mode(FmuInstance *instance);
+FmuStatus fmu_enter_step_mode(FmuInstance *instance);
 FmuStatus fmu_reset(FmuInstance *instance);
 
 /* Variable access by value reference (scalars): unknown references, a wrong type, setting an output,
@@ -184,5 +201,25 @@ FmuStatus fmu_free_state(FmuInstance *instance, void **state);
 size_t fmu_serialized_state_size(void);
 FmuStatus fmu_serialize_state(FmuInstance *instance, const void *state, uint8_t buffer[], size_t size);
 FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], size_t size, void **state);
+
+#ifdef FMU_BUS
+/* The bus side of a model with a bus (FMI-LS-BUS network abstraction), implemented by the model. Value
+ * references are those of its Binary and Clock variables; each logs through fmu_error and returns
+ * FMU_ERROR on a misuse (wrong mode, unknown reference, buffer overflow).
+ *   fmu_bus_start: the nodes boot (ExitInitializationMode);
+ *   fmu_bus_set_clock / get_clock: input clocks activated by the importer, output clocks' activity;
+ *   fmu_bus_set_binary / get_binary: clocked Binary inputs and outputs (Event Mode);
+ *   fmu_bus_update: UpdateDiscreteStates, the received operations processed;
+ *   fmu_bus_pending: Tx data waits for the importer (DoStep's eventHandlingNeeded). */
+FmuStatus fmu_bus_start(FmuInstance *instance);
+FmuStatus fmu_bus_set_clock(FmuInstance *instance, const uint32_t vr[], size_t n, const bool value[]);
+FmuStatus fmu_bus_get_clock(FmuInstance *instance, const uint32_t vr[], size_t n, bool value[]);
+FmuStatus fmu_bus_set_binary(FmuInstance *instance, const uint32_t vr[], size_t n, const size_t size[],
+                             const uint8_t *const value[]);
+FmuStatus fmu_bus_get_binary(FmuInstance *instance, const uint32_t vr[], size_t n, size_t size[],
+                             const uint8_t *value[]);
+FmuStatus fmu_bus_update(FmuInstance *instance);
+bool fmu_bus_pending(const FmuInstance *instance);
+#endif
 
 #endif /* FMU_INSTANCE_H */

@@ -108,7 +108,7 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const uint8_t buffer[], s
         return fmu_error(instance, "DeserializeFMUState: the bytes are not a state of this FMU "
                                    "(other model, export or format version)");
     if (header.mode != FMU_MODE_INSTANTIATED && header.mode != FMU_MODE_INITIALIZATION &&
-        header.mode != FMU_MODE_STEP && header.mode != FMU_MODE_TERMINATED)
+        header.mode != FMU_MODE_STEP && header.mode != FMU_MODE_TERMINATED && header.mode != FMU_MODE_EVENT)
         return fmu_error(instance, "DeserializeFMUState: corrupt state (mode %u)", (unsigned)header.mode);
     FmuState *st;
     FmuStatus s = writable_state(instance, *state, "DeserializeFMUState", &st);

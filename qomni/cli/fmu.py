@@ -18,8 +18,10 @@ def export_fmu(
     out: Path = typer.Option(..., "--out", help="FMU file to write (NAME.fmu)."),
     fmi: int = typer.Option(2, "--fmi", help="FMI version: 2 or 3."),
     kind: str = typer.Option("feedforward", help="Model: 'feedforward' (law (21): motor torques from the "
-                                                 "desired motion) or 'plant' (the vehicle: motor torques in, "
-                                                 "pose, steering, encoders and mode k out)."),
+                                                 "desired motion), 'plant' (the vehicle: motor torques in, "
+                                                 "pose, steering, encoders and mode k out) or 'plant-can' (the "
+                                                 "plant behind its CAN bus: CAN frames in and out through an "
+                                                 "FMI-LS-BUS CAN terminal; FMI 3 only)."),
     vehicle: Optional[Path] = typer.Option(None, help="Data sheet (geometry, i_G); default: the run's."),
     platform: Optional[list[str]] = typer.Option(
         None, "--platform", help="Cross-compile for this FMI 3 platform tuple with zig cc (repeatable): "
