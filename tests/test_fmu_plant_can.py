@@ -214,6 +214,12 @@ def test_malformed_operations_are_answered_and_misuse_is_an_error(fmus):
         assert [e.data[:4] for e in errors] == [struct.pack("<I", 0x99), struct.pack("<I", 0x10)]
         status = _tpdos(can.exchange([CanFrame(0x80)]))[0]                        # NMT start was taken
         assert np.all(status == 0x0260)
+        can.fmu.enterEventMode()                               # no UpdateDiscreteStates: EnterStepMode processes
+        can.fmu.setClock([can.rx_clock], [True])
+        can.fmu.setBinary([can.rx_data], [encode([CanFrame(0x80)])])
+        can.fmu.enterStepMode()
+        assert can.step(TS)                                    # the SYNC's TPDOs wait: eventHandlingNeeded
+        assert np.all(_tpdos(can.exchange([]))[0] == 0x0260)
         can.fmu.enterEventMode()
         with pytest.raises(FMICallException):                                      # Rx_Clock not active
             can.fmu.setBinary([can.rx_data], [good])

@@ -202,8 +202,13 @@ FmuStatus fmu_enter_event_mode(FmuInstance *instance) {
 FmuStatus fmu_enter_step_mode(FmuInstance *instance) {
     FmuStatus s = fmu_require_mode(instance, FMU_MODE_EVENT, "EnterStepMode");
     if (s != FMU_OK) return s;
+#ifdef FMU_BUS
+    /* operations received in this Event Mode but not yet processed (no UpdateDiscreteStates) */
+    s = fmu_bus_update(instance);
+    if (s == FMU_ERROR || s == FMU_FATAL) return s;
+#endif
     instance->mode = FMU_MODE_STEP;
-    return FMU_OK;
+    return s;
 }
 
 FmuStatus fmu_do_step(FmuInstance *instance, double t, double h) {

@@ -14,7 +14,7 @@
  *
  * Event Mode (FMI 3.0 section 4.2.3): the importer activates Rx_Clock and sets Rx_Data, then calls
  * UpdateDiscreteStates, which processes the operations in order (a SYNC among them runs the nodes' SYNC
- * cycle at the current time). Tx_Clock is active while transmitted frames wait: in the same Event Mode
+ * cycle at the current time; operations still unprocessed at EnterStepMode are processed there). Tx_Clock is active while transmitted frames wait: in the same Event Mode
  * (GetClock) and, if the importer leaves Event Mode without reading Tx_Data, at the end of the next DoStep
  * (eventHandlingNeeded, the triggered Tx_Clock of the standard). Reading Tx_Data hands the operations
  * over. */
