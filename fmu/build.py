@@ -80,6 +80,8 @@ def config_h(variables: list[Variable], identifier: str, token: str, prefix: str
     for v in variables:
         if v.group:
             lines.append(f"#define {prefix}_{v.group} {v.index} /* {v.name} */")
+            if "maxSize" in dict(v.attributes):
+                lines.append(f"#define {prefix}_{v.group}_MAX_SIZE {dict(v.attributes)['maxSize']} /* bytes */")
     lines += ["", "#define FMU_VARIABLE_TABLE { \\"]
     for v in variables:
         tunable = "true" if v.variability == "tunable" else "false"

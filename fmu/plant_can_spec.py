@@ -24,7 +24,8 @@ from .variables import Variable, number_variables
 CAN_MIME_TYPE = 'application/org.fmi-standard.fmi-ls-bus.can; version="1.0.0"'
 #: Name of the bus terminal and prefix of its variables.
 TERMINAL = "CAN"
-#: maxSize of the data variables, bytes (fmu/c/plant_can/bus_state.h CAN_RX_CAPACITY, CAN_TX_CAPACITY).
+#: maxSize of the data variables, bytes (config.h PL_RX_DATA_MAX_SIZE, PL_TX_DATA_MAX_SIZE: the buffers'
+#: sizes in fmu/c/plant_can/bus_state.h).
 RX_CAPACITY, TX_CAPACITY = 8192, 4096
 #: CiA 402 defaults of the drive EDS (hil/eds/drive402.eds) the FMU's drives use: torque slope 0x6087
 #: (per mille/s, the quick stop ramp) and the SYNC loss time (s) of the emulator's nodes.

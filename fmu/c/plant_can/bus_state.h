@@ -19,9 +19,9 @@
 #define CAN_N_DRIVES 4
 #define CAN_N_ENCODERS 2
 #define CAN_N_NODES (CAN_N_DRIVES + CAN_N_ENCODERS)
-/* Most bytes of bus operations one Rx_Data / Tx_Data value holds (the declared maxSize). */
-#define CAN_RX_CAPACITY 8192
-#define CAN_TX_CAPACITY 4096
+/* Most bytes of bus operations one Rx_Data / Tx_Data value holds: their declared maxSize (config.h). */
+#define CAN_RX_CAPACITY PL_RX_DATA_MAX_SIZE
+#define CAN_TX_CAPACITY PL_TX_DATA_MAX_SIZE
 
 typedef struct {
     uint16_t state;             /* CiA 402 power state coding (statusword bits 0..3, 5, 6) */
@@ -33,7 +33,6 @@ typedef struct {
     bool rx_pending;
     bool limited;               /* target clipped by 0x6072 in this cycle (statusword bit 11) */
     int32_t applied_torque;     /* per mille of 0x6076, applied from the last SYNC on */
-    uint16_t error_code;        /* 0x603F */
 } CanDrive;
 
 typedef struct {
@@ -41,13 +40,11 @@ typedef struct {
     CanDrive drive[CAN_N_DRIVES];
     double last_sync;           /* s, time of the last SYNC (SYNC-loss supervision) */
     bool sync_seen;
-    uint32_t syncs;             /* SYNCs processed */
     bool rx_clock;              /* Rx_Clock activated in the current Event Mode */
     uint32_t rx_size;
     uint8_t rx[CAN_RX_CAPACITY];
     uint32_t tx_size;           /* Tx operations waiting for the importer (Tx_Clock active while > 0) */
     uint8_t tx[CAN_TX_CAPACITY];
-    uint32_t format_errors;     /* corrupt operations received (each answered by a Format Error) */
 } FmuBusState;
 
 #endif /* QOMNI_BUS_STATE_H */

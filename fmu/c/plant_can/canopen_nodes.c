@@ -124,10 +124,7 @@ static void apply_controlword(CanDrive *d, uint16_t cw) {
     bool rising = (cw & CW_FAULT_RESET) && !(d->controlword & CW_FAULT_RESET);
     d->controlword = cw;
     if (command == CMD_FAULT_RESET) {
-        if (d->state == ST_FAULT && rising) {                                              /* 15 */
-            d->error_code = 0;
-            set_state(d, ST_SWITCH_ON_DISABLED);
-        }
+        if (d->state == ST_FAULT && rising) set_state(d, ST_SWITCH_ON_DISABLED);         /* 15 */
         return;
     }
     uint16_t next = transition(d->state, command);
@@ -140,10 +137,8 @@ static void apply_controlword(CanDrive *d, uint16_t cw) {
     }
 }
 
-static void fault(CanDrive *d, uint16_t error_code) {
-    if (d->state == ST_FAULT) return;
-    d->error_code = error_code;
-    set_state(d, ST_FAULT); /* 13 + 14: torque off */
+static void fault(CanDrive *d) {
+    if (d->state != ST_FAULT) set_state(d, ST_FAULT); /* 13 + 14: torque off */
 }
 
 static void latch_torque(CanDrive *d, const CanDriveData *data) {
@@ -167,9 +162,6 @@ static void latch_torque(CanDrive *d, const CanDriveData *data) {
     }
 }
 
-static void put16(uint8_t *p, uint32_t x) { p[0] = (uint8_t)x, p[1] = (uint8_t)(x >> 8); }
-static void put32(uint8_t *p, uint32_t x) { put16(p, x), put16(p + 2, x >> 16); }
-
 static int send(FmuValues *v, uint32_t id, const uint8_t *data, uint8_t len, char *error, size_t size) {
     if (can_transmit(&v->bus, id, data, len) == 0) return 0;
     snprintf(error, size, "CAN.Tx_Data is full (%d bytes of operations not read by the importer)",
@@ -179,7 +171,7 @@ static int send(FmuValues *v, uint32_t id, const uint8_t *data, uint8_t len, cha
 
 static int emcy(FmuValues *v, int node, uint16_t code, char *error, size_t size) {
     uint8_t data[8] = {0};
-    put16(data, code);
+    can_put16(data, code);
     data[2] = ERROR_REGISTER_COMMUNICATION;
     return send(v, 0x080u + (uint32_t)node + 1u, data, 8, error, size);
 }
@@ -188,19 +180,18 @@ static int32_t saturate32(double x) {
     return x >= 2147483647.0 ? 2147483647 : x <= -2147483648.0 ? INT32_MIN : (int32_t)x;
 }
 
-static int leave_operational(FmuValues *v, int node) {
+static void leave_operational(FmuValues *v, int node) {
     if (v->bus.nmt[node] == NMT_OPERATIONAL && node < CAN_N_DRIVES &&
         v->bus.drive[node].state == ST_OPERATION_ENABLED)
-        fault(&v->bus.drive[node], EMCY_COMMUNICATION); /* 0x6007 = 1 */
-    return 0;
+        fault(&v->bus.drive[node]); /* 0x6007 = 1 */
 }
 
 static int nmt_command(FmuValues *v, uint8_t command, int node, char *error, size_t size) {
     FmuBusState *b = &v->bus;
     switch (command) {
     case 0x01: b->nmt[node] = NMT_OPERATIONAL; return 0;
-    case 0x02: leave_operational(v, node), b->nmt[node] = NMT_STOPPED; return 0;
-    case 0x80: leave_operational(v, node), b->nmt[node] = NMT_PRE_OPERATIONAL; return 0;
+    case 0x02: leave_operational(v, node); b->nmt[node] = NMT_STOPPED; return 0;
+    case 0x80: leave_operational(v, node); b->nmt[node] = NMT_PRE_OPERATIONAL; return 0;
     case 0x81:
     case 0x82: {
         leave_operational(v, node);
@@ -231,17 +222,17 @@ static int sync(FmuValues *v, char *error, size_t size) {
         snprintf(error, size, "the plant's outputs cannot be calculated at the SYNC");
         return -1;
     }
-    b->last_sync = v->time, b->sync_seen = true, b->syncs++;
+    b->last_sync = v->time, b->sync_seen = true;
     for (int i = 0; i < CAN_N_DRIVES; i++) {                                     /* 4 */
         if (b->nmt[i] != NMT_OPERATIONAL) continue;
         const CanDrive *d = &b->drive[i];
         double counts = floor(position[i] / TWO_PI * data.encoder_increments);
         uint32_t raw = (uint32_t)(int64_t)fmod(counts, 4294967296.0); /* wraps like the drive's counter */
         uint8_t tpdo1[6], tpdo2[6];
-        put16(tpdo1, d->statusword);
-        put32(tpdo1 + 2, raw);
-        put32(tpdo2, (uint32_t)saturate32(rint(velocity[i] / TWO_PI * data.encoder_increments)));
-        put16(tpdo2 + 4, (uint16_t)(int16_t)d->applied_torque);
+        can_put16(tpdo1, d->statusword);
+        can_put32(tpdo1 + 2, raw);
+        can_put32(tpdo2, (uint32_t)saturate32(rint(velocity[i] / TWO_PI * data.encoder_increments)));
+        can_put16(tpdo2 + 4, (uint16_t)(int16_t)d->applied_torque);
         if (send(v, 0x180u + (uint32_t)i + 1u, tpdo1, 6, error, size) ||
             send(v, 0x280u + (uint32_t)i + 1u, tpdo2, 6, error, size))
             return -1;
@@ -253,20 +244,15 @@ static int sync(FmuValues *v, char *error, size_t size) {
         double counts = fmod(rint(alpha[j] / TWO_PI * full), full);
         if (counts < 0) counts += full;
         uint8_t tpdo[4];
-        put32(tpdo, (uint32_t)counts);
+        can_put32(tpdo, (uint32_t)counts);
         if (send(v, 0x180u + (uint32_t)node + 1u, tpdo, 4, error, size)) return -1;
     }
     return 0;
 }
 
 int can_nodes_boot(FmuValues *v, char *error, size_t size) {
-    FmuBusState *b = &v->bus;
-    for (int i = 0; i < CAN_N_DRIVES; i++) reset_application(&b->drive[i]);
-    for (int n = 0; n < CAN_N_NODES; n++) {
-        b->nmt[n] = NMT_PRE_OPERATIONAL;
-        uint8_t boot = 0;
-        if (send(v, 0x700u + (uint32_t)n + 1u, &boot, 1, error, size)) return -1;
-    }
+    for (int n = 0; n < CAN_N_NODES; n++)
+        if (nmt_command(v, 0x81, n, error, size)) return -1; /* power on: as a reset node */
     return 0;
 }
 
@@ -299,7 +285,7 @@ int can_nodes_supervise(FmuValues *v, char *error, size_t size) {
     b->sync_seen = false; /* reported once per loss */
     for (int n = 0; n < CAN_N_NODES; n++) {
         if (b->nmt[n] != NMT_OPERATIONAL) continue;
-        if (n < CAN_N_DRIVES && b->drive[n].state == ST_OPERATION_ENABLED) fault(&b->drive[n], EMCY_COMMUNICATION);
+        if (n < CAN_N_DRIVES && b->drive[n].state == ST_OPERATION_ENABLED) fault(&b->drive[n]);
         if (emcy(v, n, EMCY_COMMUNICATION, error, size)) return -1;
     }
     return 0;

@@ -37,12 +37,6 @@
 #define HEADER 8u
 #define CAN_TRANSMIT_FIXED 16u /* header + id + ide + rtr + data length */
 
-static uint32_t get32(const uint8_t *p) {
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-static void put16(uint8_t *p, uint32_t x) { p[0] = (uint8_t)x, p[1] = (uint8_t)(x >> 8); }
-static void put32(uint8_t *p, uint32_t x) { put16(p, x), put16(p + 2, x >> 16); }
-
 static int append(FmuBusState *b, const uint8_t *op, uint32_t length) {
     if (b->tx_size + length > CAN_TX_CAPACITY) return -1;
     memcpy(b->tx + b->tx_size, op, length);
@@ -52,24 +46,23 @@ static int append(FmuBusState *b, const uint8_t *op, uint32_t length) {
 
 int can_transmit(FmuBusState *b, uint32_t id, const uint8_t *data, uint8_t len) {
     uint8_t op[CAN_TRANSMIT_FIXED + 8];
-    put32(op, OP_CAN_TRANSMIT);
-    put32(op + 4, CAN_TRANSMIT_FIXED + len);
-    put32(op + 8, id);
+    can_put32(op, OP_CAN_TRANSMIT);
+    can_put32(op + 4, CAN_TRANSMIT_FIXED + len);
+    can_put32(op + 8, id);
     op[12] = 0; /* ide: standard 11-bit identifier */
     op[13] = 0; /* rtr: data frame */
-    put16(op + 14, len);
+    can_put16(op + 14, len);
     memcpy(op + 16, data, len);
     return append(b, op, CAN_TRANSMIT_FIXED + len);
 }
 
 static FmuStatus format_error(FmuInstance *instance, const uint8_t *op, uint32_t n, const char *why) {
     FmuBusState *b = &instance->values.bus;
-    b->format_errors++;
     uint8_t header[10];
     if (n > CAN_TX_CAPACITY - 10u) n = CAN_TX_CAPACITY - 10u; /* the offending bytes, as many as fit */
-    put32(header, OP_FORMAT_ERROR);
-    put32(header + 4, 10u + n);
-    put16(header + 8, n);
+    can_put32(header, OP_FORMAT_ERROR);
+    can_put32(header + 4, 10u + n);
+    can_put16(header + 8, n);
     if (b->tx_size + 10u + n > CAN_TX_CAPACITY)
         return fmu_error(instance, "CAN.Rx_Data: %s; CAN.Tx_Data is full, the Format Error cannot be sent", why);
     append(b, header, 10);
@@ -90,7 +83,7 @@ static FmuStatus process(FmuInstance *instance) {
             snprintf(text, sizeof text, "%u bytes at offset %u are not an operation header", left, at);
             return format_error(instance, op, left, text);
         }
-        uint32_t code = get32(op), length = get32(op + 4);
+        uint32_t code = can_get32(op), length = can_get32(op + 4);
         if (length < HEADER || length > left) {
             snprintf(text, sizeof text, "operation 0x%04X at offset %u declares %u bytes, %u are there", code, at,
                      length, left);
@@ -107,7 +100,7 @@ static FmuStatus process(FmuInstance *instance) {
                 if (status == FMU_ERROR) return status;
                 continue;
             }
-            uint32_t id = get32(op + 8);
+            uint32_t id = can_get32(op + 8);
             if (op[12] || op[13] || data_length > 8 || id > 0x7FFu) continue; /* no CANopen frame */
             char error[256] = "";
             if (can_nodes_receive(&instance->values, id, op + 16, (uint8_t)data_length, error, sizeof error))

@@ -20,6 +20,13 @@ typedef struct {
     int32_t steering_sensor_bits; /* resolution of the absolute steering sensors (0x6004 units) */
 } CanDriveData;
 
+/* Little-endian fields of CAN data and bus operations. */
+static inline void can_put16(uint8_t *p, uint32_t x) { p[0] = (uint8_t)x, p[1] = (uint8_t)(x >> 8); }
+static inline void can_put32(uint8_t *p, uint32_t x) { can_put16(p, x), can_put16(p + 2, x >> 16); }
+static inline uint32_t can_get32(const uint8_t *p) {
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
 /* model.c: the drive data of v; the sensors' physical values at v's time (motor side rad, rad/s; rad). */
 void plant_can_drive_data(const FmuValues *v, CanDriveData *d);
 int plant_can_sensors(FmuValues *v, double motor_position[4], double motor_velocity[4], double alpha[2]);
