@@ -82,24 +82,24 @@ def plant_can_variables(p: dict[str, float], geometry, i_G: float, eps: float = 
                  "sensors (0x6004 counts 2^bits per revolution)", start=1),
     ]
     out[at:at] = drive
-    clock_rx = Variable(f"{TERMINAL}.Rx_Clock", "Clock", "input", "discrete",
-                        "input clock of CAN.Rx_Data: activated by the importer when operations arrive",
-                        group="RX_CLOCK", attributes=(("intervalVariability", "triggered"),))
-    clock_tx = Variable(f"{TERMINAL}.Tx_Clock", "Clock", "output", "discrete",
-                        "output clock of CAN.Tx_Data: active while transmitted frames wait for the importer",
-                        group="TX_CLOCK", attributes=(("intervalVariability", "triggered"),))
-    rx = Variable(f"{TERMINAL}.Rx_Data", "Binary", "input", "discrete",
-                  "bus operations received (FMI-LS-BUS CAN: CAN Transmit of the master's frames)", start="",
-                  group="RX_DATA", attributes=(("mimeType", CAN_MIME_TYPE), ("maxSize", str(RX_CAPACITY))))
-    tx = Variable(f"{TERMINAL}.Tx_Data", "Binary", "output", "discrete",
-                  "bus operations sent (FMI-LS-BUS CAN: CAN Transmit of the nodes' frames, Format Error)",
-                  group="TX_DATA", attributes=(("mimeType", CAN_MIME_TYPE), ("maxSize", str(TX_CAPACITY))))
-    numbered = number_variables(out + [clock_rx, rx, clock_tx, tx])
-    vr = {v.name: v.vr for v in numbered}
-    return [replace(v, attributes=v.attributes + (("clocks", str(vr[f"{TERMINAL}.Rx_Clock"])),))
-            if v.name == rx.name else
-            replace(v, attributes=v.attributes + (("clocks", str(vr[f"{TERMINAL}.Tx_Clock"])),))
-            if v.name == tx.name else v for v in numbered]
+    rx_clock, tx_clock = len(out), len(out) + 2       # value references = list positions (number_variables)
+    bus = [
+        Variable(f"{TERMINAL}.Rx_Clock", "Clock", "input", "discrete",
+                 "input clock of CAN.Rx_Data: activated by the importer when operations arrive",
+                 group="RX_CLOCK", attributes=(("intervalVariability", "triggered"),)),
+        Variable(f"{TERMINAL}.Rx_Data", "Binary", "input", "discrete",
+                 "bus operations received (FMI-LS-BUS CAN: CAN Transmit of the master's frames)", start="",
+                 group="RX_DATA", attributes=(("mimeType", CAN_MIME_TYPE), ("maxSize", str(RX_CAPACITY)),
+                                              ("clocks", str(rx_clock)))),
+        Variable(f"{TERMINAL}.Tx_Clock", "Clock", "output", "discrete",
+                 "output clock of CAN.Tx_Data: active while transmitted frames wait for the importer",
+                 group="TX_CLOCK", attributes=(("intervalVariability", "triggered"),)),
+        Variable(f"{TERMINAL}.Tx_Data", "Binary", "output", "discrete",
+                 "bus operations sent (FMI-LS-BUS CAN: CAN Transmit of the nodes' frames, Format Error)",
+                 group="TX_DATA", attributes=(("mimeType", CAN_MIME_TYPE), ("maxSize", str(TX_CAPACITY)),
+                                              ("clocks", str(tx_clock)))),
+    ]
+    return number_variables(out + bus)
 
 
 def with_datasheet(variables: list[Variable], datasheet) -> list[Variable]:
