@@ -10,6 +10,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from can import Message
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy.fmi1 import FMICallException  # noqa: E402
@@ -23,6 +24,7 @@ from qomni.fmu.export import export_plant_can_fmu, export_plant_fmu  # noqa: E40
 from qomni.fmu.lsbus import CanBusSlave, CanFrame, FormatError, LsBusFormatError, decode, encode  # noqa: E402
 from qomni.fmu.plant_can_spec import TORQUE_SLOPE  # noqa: E402
 from qomni.hil.tools.recorder import sent_by_master  # noqa: E402
+from qomni.hil.units import alpha_to_counts  # noqa: E402
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
@@ -71,8 +73,7 @@ def _client_events():
         frame = CanFrame(int(cob), bytes(data[:dlc]))
         if 0x181 <= cob <= 0x184:
             status[-1][cob - 0x181] = int.from_bytes(frame.data[:2], "little")
-        msg = type("M", (), {"arbitration_id": int(cob), "is_extended_id": False})
-        if not sent_by_master(msg):
+        if not sent_by_master(Message(arbitration_id=int(cob), is_extended_id=False)):
             continue
         current.append(frame)
         if cob == 0x80:
@@ -92,9 +93,7 @@ def _sensors(y):
     mv = np.array([out[f"motor_velocity.{w}"] for w in ("fl", "rl", "fr", "rr")])
     position = ((np.floor(mp / TWO_PI * INC).astype(np.int64) + 2**31) % 2**32 - 2**31)
     velocity = np.rint(mv / TWO_PI * INC).astype(np.int64)
-    full = 2**BITS
-    counts = np.rint(np.array([out["alpha_l"], out["alpha_r"]]) / TWO_PI * full).astype(np.int64) % full
-    return position, velocity, counts
+    return position, velocity, alpha_to_counts([out["alpha_l"], out["alpha_r"]], BITS)
 
 
 def _tpdos(frames):
