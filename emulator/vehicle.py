@@ -105,6 +105,7 @@ class Emulator:
         for joint, angle in zip(self._steer, (alpha_l, -alpha_l, alpha_r, -alpha_r)):
             self._pb.resetJointState(self.body, joint, angle, 0.0)
         velocity_window = max(1, round(0.002 / time_step))
+        # the encoders' wheel angles over the velocity window; turned into counts only when read
         self._position_history: deque[np.ndarray] = deque(maxlen=velocity_window + 1)
         for _ in range(round(SETTLE_TIME / time_step)):
             self._physics_step()
@@ -112,7 +113,7 @@ class Emulator:
         self._sensed_joints = [*self._plant.encoder_joints, self._steer[0], self._steer[2]]
         self._angles_now = self._angles_before = self._sensed_angles()
         self._position_history.clear()
-        self._position_history.append(self._encoder_positions())
+        self._position_history.append(self._wheel_angles())
 
     # -- construction -----------------------------------------------------------------------
     def _build(self) -> None:
@@ -191,17 +192,17 @@ class Emulator:
             ValueError: wrong shape or a non-finite value.
         """
         u = np.asarray(motor_torque, dtype=float)
-        if u.shape != (4,) or not np.all(np.isfinite(u)):
+        if u.shape != (4,) or not np.isfinite(u).all():
             raise ValueError(f"motor_torque must be 4 finite values, got {motor_torque!r}")
-        drive, noise = self.description.drive, self.description.noise
-        self._commanded = np.clip(u, -drive.max_torque, drive.max_torque)
+        limit = self.description.drive.max_torque
+        self._commanded = np.minimum(np.maximum(u, -limit), limit)
 
     def step(self, duration: float) -> None:
         """Advance the physics by ``duration`` s (rounded to whole physics steps)."""
         for _ in range(round(duration / self.time_step)):
             self._physics_step()
             self._read_sensed_joints()
-            self._position_history.append(self._encoder_positions())
+            self._position_history.append(self._wheel_angles())
 
     def _physics_step(self) -> None:
         # Torque ripple: zero-mean, fresh every physics step, only while the drive produces torque.
@@ -253,19 +254,21 @@ class Emulator:
         """Angles the motor encoders see, wheel side (the wheels, or the motor rotors behind a gear)."""
         return self._sampled_angles()[:len(self._plant.encoder_joints)]
 
-    def _encoder_positions(self) -> np.ndarray:
+    def _encoder_counts(self, wheel_angles: np.ndarray) -> np.ndarray:
+        """Motor encoder positions (increments, int64) of wheel-side angles (rad)."""
         drive = self.description.drive
-        return np.floor(self._wheel_angles() * drive.i_G / (2 * math.pi)
-                        * drive.encoder_increments).astype(np.int64)
+        return np.floor(wheel_angles * drive.i_G / (2 * math.pi) * drive.encoder_increments).astype(np.int64)
 
     def read_sensors(self) -> SensorReading:
         """Sample every sensor now, at data-sheet resolution (see ``SensorReading``)."""
         drive, noise = self.description.drive, self.description.noise
         history = self._position_history
-        position = history[-1]
+        position = self._encoder_counts(history[-1])
         span = (len(history) - 1) * self.time_step
-        velocity = ((position - history[0]) / span).round().astype(np.int64) if span > 0 else \
-            np.zeros(4, dtype=np.int64)
+        if span > 0:
+            velocity = ((position - self._encoder_counts(history[0])) / span).round().astype(np.int64)
+        else:
+            velocity = np.zeros(4, dtype=np.int64)
         torque = self._commanded.copy()
         for effect in self._reporters:
             torque = effect.reported_torque(torque)

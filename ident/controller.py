@@ -13,6 +13,7 @@ Per cycle it
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -90,6 +91,7 @@ class StepController:
         ar2 = (g.a / g.r) ** 2
         self._steer_inertia = np.array([n.C_l, n.C_r]) + 2 * n.B_w * ar2
         self._hold_rows = d.i_G * kinematics.H(1, np.zeros((1, 2)), g)[0][5:9, :].T  # (2, 4) H_1ᵀB
+        self._hold_inverse = np.linalg.pinv(self._hold_rows)
         self._s_chassis = 0.0
         self._steer_integral = np.zeros(2)
         self.retune(s.steering_bandwidth)
@@ -97,7 +99,15 @@ class StepController:
         self._integral_deadband = 1.5 * d.steering_lsb
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
+        self._chassis_terms_at = lru_cache(maxsize=4096)(self._chassis_terms_uncached)
+        self._fixed_chassis_terms = self._chassis_terms_uncached(0.0, 0.0) if self.k in (3, 4) else None
+        self._plan = self._planned(np.arange(self.cycles) * d.cycle_time)
         self._warm_up()
+
+    @property
+    def cycles(self) -> int:
+        """Cycles the step takes at t = j·T_s, j = 0 … cycles − 1 (its end included)."""
+        return int(np.floor(self.step.duration / self.sheet.drive.cycle_time + 1e-9)) + 1
 
     def retune(self, steering_bandwidth: float) -> None:
         """Set the steering loop's bandwidth (rad/s): its PID gains (:func:`design_pid`) and the
@@ -110,32 +120,50 @@ class StepController:
     def _warm_up(self) -> None:
         """Evaluate the command path once: the model compiles on first use (≈ 0.1–0.3 s), which must
         not happen between two SYNCs."""
-        a_ref, ad_ref, add_ref, chassis, av = self._references(0.0)
-        self._feedforward(a_ref, ad_ref, add_ref, chassis, av)
+        a_ref, ad_ref, chassis, _ = self._reference_row(0.0)
         if chassis is not None:
-            self._chassis_column(a_ref)
+            self._chassis_terms(a_ref)
         odometry.chassis_velocity(a_ref[None], ad_ref[None], np.zeros((1, 4)), self.sheet.geometry)
 
     # -- references -------------------------------------------------------------------------
-    def _references(self, t: float):
-        """The step's references at t, from one evaluation of its trajectories: α, α̇, α̈ (2,) each,
-        the chassis coordinate (q, q̇, q̈) or None, and α_v's (q, q̇, q̈) or None."""
-        ref = self.step.evaluate(np.array([t]))
+    def _references(self, t: np.ndarray):
+        """The references at the times t (N,), from one evaluation of the step's trajectories: α, α̇, α̈
+        (N, 2) each, the chassis coordinate's (q, q̇, q̈) (N,) each or None, and α_v's (q, q̇, q̈) or None."""
+        ref = self.step.evaluate(t)
         av = None
         if "alpha_v" in self.step.trajectories:
-            av = tuple(x[0] for x in ref["alpha_v"])
+            av = ref["alpha_v"]
             h = 1e-4
-            a = kinematics.f_icr(np.array([av[0] - h, av[0], av[0] + h]), self.sheet.geometry)
-            da = (a[2] - a[0]) / (2 * h)
-            dda = (a[2] - 2 * a[1] + a[0]) / h**2
-            alpha = (a[1], da * av[1], dda * av[1] ** 2 + da * av[2])
+            n = len(t)
+            a = kinematics.f_icr(np.concatenate([av[0] - h, av[0], av[0] + h]), self.sheet.geometry)
+            a_minus, a_mid, a_plus = a[:n], a[n:2 * n], a[2 * n:]
+            da = (a_plus - a_minus) / (2 * h)
+            dda = (a_plus - 2 * a_mid + a_minus) / h**2
+            alpha = (a_mid, da * av[1][:, None], dda * av[1][:, None] ** 2 + da * av[2][:, None])
         else:
-            alpha = tuple(np.array([ref[c][i][0] for c in ("alpha_l", "alpha_r")]) for i in range(3))
+            alpha = tuple(np.stack([ref[c][i] for c in ("alpha_l", "alpha_r")], axis=1) for i in range(3))
         name = CHASSIS_COORDINATE.get(self.k)
         chassis = None
         if name is not None and name in self.step.trajectories:
-            chassis = tuple(x[0] for x in ref[name])
+            chassis = ref[name]
         return (*alpha, chassis, av)
+
+    def _planned(self, t: np.ndarray) -> dict:
+        """References and feed-forward at the times t (N,), computed at once: the feed-forward depends on
+        the references only, so the cycle needs none of the model's evaluation."""
+        a_ref, ad_ref, add_ref, chassis, av = self._references(t)
+        return {"t": t, "alpha": a_ref, "alpha_dot": ad_ref, "chassis": chassis,
+                "u_ff": self._feedforward(a_ref, ad_ref, add_ref, chassis, av)}
+
+    def _reference_row(self, t: float):
+        """(α, α̇ (2,), chassis (q, q̇) or None, u_ff (4,)) at step time t: the plan's row when t is on the
+        cycle grid, else evaluated for t alone."""
+        plan = self._plan
+        j = int(round(t / self.sheet.drive.cycle_time))
+        if not (0 <= j < len(plan["t"]) and plan["t"][j] == t):
+            plan, j = self._planned(np.array([float(t)])), 0
+        chassis = None if plan["chassis"] is None else (plan["chassis"][0][j], plan["chassis"][1][j])
+        return plan["alpha"][j], plan["alpha_dot"][j], chassis, plan["u_ff"][j]
 
     def _chassis_rate(self, velocity: np.ndarray) -> float:
         """The step's chassis coordinate rate from the chassis-frame velocities (3,)."""
@@ -158,41 +186,39 @@ class StepController:
         """Motor torques (4,) [N m, motor side] for the cycle after ``measurement``, at step time t."""
         st = self.estimate(measurement)
         d = self.sheet.drive
-        a_ref, ad_ref, add_ref, chassis, av = self._references(t)
-        u_ff = self._feedforward(a_ref, ad_ref, add_ref, chassis, av)
+        a_ref, ad_ref, chassis, u_ff = self._reference_row(t)
         sg, cg = self._steer_gains, self._chassis_gains
         error = a_ref - st.alpha
         integrate = np.where(np.abs(error) > self._integral_deadband, error, 0.0)
-        self._steer_integral = np.clip(self._steer_integral + integrate * d.cycle_time,
-                                       -self._integral_limit, self._integral_limit)
+        limit = self._integral_limit
+        self._steer_integral = np.minimum(np.maximum(self._steer_integral + integrate * d.cycle_time, -limit),
+                                          limit)
         q_steer = self._steer_inertia * (sg.kp * error + sg.kd * (ad_ref - st.alpha_dot)
                                          + sg.ki * self._steer_integral)
-        rows, forces = [self._hold_rows], [q_steer]
-        if chassis is not None:
-            h = self._chassis_column(st.alpha)
+        if chassis is None:
+            u_fb = self._hold_inverse @ q_steer
+        else:
+            inertia, inverse = self._chassis_terms(st.alpha)
             rate = float(self._rate.update(self._chassis_rate(st.velocity))[0])
-            q_ch = self._chassis_inertia(h) * (cg.kp * (chassis[0] - st.s_chassis)
-                                               + cg.kd * (chassis[1] - rate))
-            rows.append((d.i_G * h[5:9])[None])  # H_kᵀB of the chassis column, (1, 4)
-            forces.append([q_ch])
-        u_fb = np.linalg.pinv(np.vstack(rows)) @ np.concatenate(forces)
-        return np.clip(u_ff + u_fb, -self._u_max, self._u_max)
+            q_ch = inertia * (cg.kp * (chassis[0] - st.s_chassis) + cg.kd * (chassis[1] - rate))
+            u_fb = inverse @ np.array([q_steer[0], q_steer[1], q_ch])
+        return np.minimum(np.maximum(u_ff + u_fb, -self._u_max), self._u_max)
 
     def _feedforward(self, a_ref, ad_ref, add_ref, chassis, av) -> np.ndarray:
-        k = self.k
-        q = np.zeros(9)
-        q[3:5] = a_ref
+        """Feed-forward motor torques (N, 4) [N m, motor side] of (21) along the references (N samples)."""
+        k, n = self.k, len(a_ref)
+        q = np.zeros((n, 9))
+        q[:, 3:5] = a_ref
         if k == 1:
             sd, sdd = ad_ref, add_ref
         elif k == 2:
-            av_d, av_dd = (av[1], av[2]) if av is not None else (0.0, 0.0)
-            sd = np.array([av_d, chassis[1]])
-            sdd = np.array([av_dd, chassis[2]])
+            av_d, av_dd = (av[1], av[2]) if av is not None else (np.zeros(n), np.zeros(n))
+            sd = np.stack([av_d, chassis[1]], axis=1)
+            sdd = np.stack([av_dd, chassis[2]], axis=1)
         else:
-            sd, sdd = np.array([chassis[1]]), np.array([chassis[2]])
-        u = dynamics.feedforward(k, q[None], sd[None], sdd[None], self.p_nominal,
-                                 self.sheet.geometry, self.sheet.drive.i_G)
-        return np.asarray(u)[0]
+            sd, sdd = chassis[1][:, None], chassis[2][:, None]
+        return np.asarray(dynamics.feedforward(k, q, sd, sdd, self.p_nominal, self.sheet.geometry,
+                                               self.sheet.drive.i_G))
 
     def _alpha_v(self, alpha: np.ndarray) -> float:
         if self.k != 2:
@@ -203,10 +229,24 @@ class StepController:
         """The column of H_k belonging to the chassis coordinate, (9,)."""
         g = self.sheet.geometry
         if self.k == 2:
-            av = self._alpha_v(alpha)
-            alpha_icr = kinematics.f_icr(np.array([av]), g)
-            return kinematics.H(2, alpha_icr, g)[0][:, 1]
+            av = np.array([self._alpha_v(alpha)])
+            return kinematics.H(2, kinematics.f_icr(av, g), g, alpha_v=av)[0][:, 1]
         return kinematics.H(self.k, kinematics.mode_alpha(self.k, g)[None], g)[0][:, 0]
+
+    def _chassis_terms(self, alpha: np.ndarray) -> tuple[float, np.ndarray]:
+        """The chassis loop's nominal inertia h ᵀ M h and the allocation (4, 3), the pseudoinverse of the
+        stacked input rows (H_1ᵀB of the steering, H_kᵀB of the chassis column h), at the measured α.
+        Modes 3 and 4 hold one configuration, so both are fixed; in mode 2 they depend on α through α_v,
+        and the measured α are steering sensor counts, few distinct values recurring cycle after cycle."""
+        if self.k != 2:
+            return self._fixed_chassis_terms
+        return self._chassis_terms_at(float(alpha[0]), float(alpha[1]))
+
+    def _chassis_terms_uncached(self, alpha_l: float, alpha_r: float) -> tuple[float, np.ndarray]:
+        h = self._chassis_column(np.array([alpha_l, alpha_r]))
+        inverse = np.linalg.pinv(np.vstack([self._hold_rows, self.sheet.drive.i_G * h[5:9][None]]))
+        inverse.flags.writeable = False
+        return self._chassis_inertia(h), inverse
 
     def _chassis_inertia(self, h: np.ndarray) -> float:
         """Nominal generalized inertia h ᵀ M h of the chassis column h (9,) of H_k."""

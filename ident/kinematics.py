@@ -63,8 +63,18 @@ def _compile(matrix, args):
 
     rows, cols = matrix.shape
     fn = sp.lambdify(args, list(matrix), modules="numpy", cse=True)
+    # One sample (the controller's every cycle): the same expressions on Python floats, where numpy's
+    # per-call overhead on (1,) arrays would cost several times the arithmetic. A float division by zero
+    # raises there; that sample then goes through numpy, which gives inf or nan as for N samples.
+    scalar = sp.lambdify(args, list(matrix), modules="math", cse=True)
 
     def evaluate(n: int, *values) -> np.ndarray:
+        if n == 1:
+            try:
+                return np.array(scalar(*(float(v[0]) if isinstance(v, np.ndarray) else float(v)
+                                         for v in values)), dtype=float).reshape(1, rows, cols)
+            except (ZeroDivisionError, ValueError, OverflowError):
+                pass
         out = np.empty((n, rows * cols))
         with np.errstate(divide="ignore", invalid="ignore"):
             for j, entry in enumerate(fn(*values)):

@@ -32,6 +32,10 @@ def chassis_velocity(alpha, alpha_dot, beta_dot, geometry) -> np.ndarray:
         raise ValueError("alpha, alpha_dot and beta_dot need the same number of samples N, got "
                          f"{alpha.shape[0]}, {alpha_dot.shape[0]}, {beta_dot.shape[0]}")
     A = _kin.constraint_matrix(alpha, geometry)
+    if A.shape[0] == 1:                    # one sample (a controller's cycle): 2-D products, no batching
+        a = A[0]
+        rhs = -(a[:, 3:5] @ alpha_dot[0] + a[:, 5:] @ beta_dot[0])
+        return np.linalg.solve(a[:, :3].T @ a[:, :3], a[:, :3].T @ rhs)[None]
     A_ch = A[:, :, :3]
     rhs = -(np.einsum("nij,nj->ni", A[:, :, 3:5], alpha_dot) + np.einsum("nij,nj->ni", A[:, :, 5:], beta_dot))
     AtA = np.einsum("nki,nkj->nij", A_ch, A_ch)

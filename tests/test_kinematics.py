@@ -216,3 +216,30 @@ def test_errors_and_shapes():
     geo = Geometry(l=2.0, b=1.0, a=0.1, r=0.2)
     alpha, av = K.f_icr(np.array([0.2, -0.4]), geo), np.array([0.2, -0.4])
     assert np.abs(K.constraint_matrix(alpha, geo) @ K.H(2, alpha, geo, alpha_v=av)).max() < 1e-12
+
+
+@pytest.mark.parametrize("k", K.MODES)
+def test_one_sample_evaluates_as_a_batch_does(k):
+    """A single sample goes through the math-module lambdification (the controller's every cycle); it
+    must give the batch's numbers, including H_dot and the constraint matrix."""
+    alpha, av = _mode_states(k, 40)
+    alpha_dot = RNG.normal(size=(40, 2))
+    batch = K.H(k, alpha, G, alpha_v=av), K.H_dot(k, alpha, alpha_dot, G, alpha_v=av), K.constraint_matrix(alpha, G)
+    for i in range(40):
+        one_av = None if av is None else av[i:i + 1]
+        single = (K.H(k, alpha[i:i + 1], G, alpha_v=one_av),
+                  K.H_dot(k, alpha[i:i + 1], alpha_dot[i:i + 1], G, alpha_v=one_av),
+                  K.constraint_matrix(alpha[i:i + 1], G))
+        for b, s in zip(batch, single):
+            assert s.shape == (1, *b.shape[1:])
+            np.testing.assert_allclose(s[0], b[i], rtol=1e-13, atol=1e-13)
+
+
+def test_one_sample_that_float_arithmetic_refuses_gives_numpys_value():
+    """Where Python's math raises (sin of an infinite angle, a division by zero) the one-sample path falls
+    back to numpy and gives what a batch gives (nan here), never an exception the batch would not raise."""
+    alpha = np.array([[np.inf, 0.1], [0.2, 0.1]])
+    batch = K.constraint_matrix(alpha, G)
+    single = K.constraint_matrix(alpha[:1], G)
+    np.testing.assert_array_equal(single[0], batch[0])
+    assert np.isnan(single).any()

@@ -76,3 +76,15 @@ def test_errors():
         O.integrate_pose([0, 0], np.zeros((2, 3)))
     with pytest.raises(ValueError, match="beta"):
         O.odometry([0, 1], np.zeros((2, 2)), np.zeros((2, 3)), G)
+
+
+def test_one_sample_equals_the_batch():
+    """The controller's per-cycle call (one sample, 2-D products) gives the batch's velocities."""
+    rng = np.random.default_rng(5)
+    alpha = rng.uniform(-1.4, 1.4, (50, 2))
+    alpha_dot, beta_dot = rng.normal(size=(50, 2)), rng.normal(size=(50, 4))
+    batch = O.chassis_velocity(alpha, alpha_dot, beta_dot, G)
+    for i in range(50):
+        one = O.chassis_velocity(alpha[i:i + 1], alpha_dot[i:i + 1], beta_dot[i:i + 1], G)
+        assert one.shape == (1, 3)
+        np.testing.assert_allclose(one[0], batch[i], rtol=1e-12, atol=1e-14)

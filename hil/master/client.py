@@ -236,10 +236,11 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
         tau = np.asarray(motor_torque, dtype=float)
         if tau.shape != (4,):
             raise ValueError(f"motor_torque must have shape (4,), got {tau.shape}")
-        if not np.all(np.isfinite(tau)):
+        if not np.isfinite(tau).all():
             raise ValueError(f"motor_torque must be finite, got {tau}")
-        per_mille = np.clip(np.rint(tau * self._per_mille_per_nm), -self._max_per_mille,
-                            self._max_per_mille).astype(np.int64).tolist()
+        limit = self._max_per_mille
+        per_mille = np.minimum(np.maximum(np.rint(tau * self._per_mille_per_nm), -limit),
+                               limit).astype(np.int64).tolist()
         self._rx.clear()
         self._rx_done.clear()
         send = self._network.send_message
