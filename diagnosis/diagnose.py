@@ -30,7 +30,7 @@ from qomni.conventions import P1_NAMES
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_run,
-                               lifted_wheel_friction, lifted_wheels, read_json)
+                               read_json, read_lifted)
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
@@ -152,7 +152,7 @@ def measured_base(model: IdentificationResult, lifted: dict | None) -> MeasuredB
     wheels' rolling: the joints' friction and whatever the ground adds (rolling resistance, a toed
     wheel's scrub). Lifted, the wheels show their joints' friction alone, from a run independent of the
     diagnosed rows, so the base fit cannot absorb the ground's share and the hypotheses compete for it.
-    ``lifted``: :func:`qomni.ident.rundir.lifted_wheel_friction`; None → None."""
+    ``lifted``: :attr:`qomni.ident.rundir.LiftedMeasurement.friction`; None → None."""
     if not lifted:
         return None
     names = list(lifted)
@@ -274,8 +274,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     prior = not model_from_data
     hypotheses = library(model_from_data)
     measured = lifted = None
-    if model_from_data:
-        lifted = lifted_wheel_friction(data_dir)
+    on_lifted_wheels = read_lifted(data_dir)
+    if model_from_data and on_lifted_wheels is not None:
+        lifted = on_lifted_wheels.friction
         measured = measured_base(model, lifted)
     fp, hp = make_problem(chans, lag, hold, base_prior=prior, measured=measured)
     cache: dict = {}
@@ -293,7 +294,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                                      levels.get(h.label))
                               for h in hypotheses) if c is not None]
     all_rows = fp if hold is not None else make_problem(chans, lag, chans, base_prior=prior, measured=measured)[0]
-    rows = RuleRows(all_rows, ref_problem, model, lag, cache, lifted_wheels(data_dir))
+    rows = RuleRows(all_rows, ref_problem, model, lag, cache,
+                    None if on_lifted_wheels is None else on_lifted_wheels.wheels)
     for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
         resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)

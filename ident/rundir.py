@@ -9,6 +9,7 @@ import hashlib
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -186,18 +187,40 @@ def datasheet_from_metadata(meta: dict, source: str) -> DataSheet:
     return sheet
 
 
+def _measured(path: Path, data: dict, keys: tuple[str, ...], positive: bool,
+              with_std: bool = True) -> tuple[float, float | None]:
+    """``(value, std)`` of the measurement at ``keys`` in ``data`` (a JSON object read from ``path``): a
+    finite value, positive or non-negative, and (``with_std``) a positive, finite std; std None without.
+
+    Raises:
+        RunDirectoryError: missing, not a number or out of range; the message names the file and key."""
+    key = ".".join(keys)
+    fields = "value/std" if with_std else "value"
+    try:
+        node = data
+        for k in keys:
+            node = node[k]
+        value = float(node["value"])
+        std = float(node["std"]) if with_std else None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RunDirectoryError(f"{path}: {key}.{fields} missing or not a number: {exc}") from None
+    value_ok = math.isfinite(value) and (value > 0 if positive else value >= 0)
+    if not (value_ok and (std is None or (math.isfinite(std) and std > 0))):
+        what = "positive" if positive else "non-negative"
+        raise RunDirectoryError(f"{path}: {key} must be a finite, {what} value"
+                                + (f" with a positive, finite std, got value {value}, std {std}" if with_std
+                                   else f", got {value}"))
+    return value, std
+
+
 def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
-    """B_w for (24): the single-axis result of this run if there is one, else the data sheet's."""
+    """B_w for (24): the single-axis result of this run if there is one, else the data sheet's.
+
+    Raises:
+        RunDirectoryError: ``single_axis.json`` has no positive, finite ``pooled.B_w.value``."""
     path = run_dir / SINGLE_AXIS_JSON
     if path.exists():
-        data = read_json(path)
-        try:
-            value = float(data["pooled"]["B_w"]["value"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise RunDirectoryError(f"{path}: pooled.B_w.value missing or not a number: {exc}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise RunDirectoryError(f"{path}: pooled.B_w.value must be a positive, finite inertia [kg m^2], "
-                                    f"got {value}")
+        value, _ = _measured(path, read_json(path), ("pooled", "B_w"), positive=True, with_std=False)
         return value, "single-axis identification (lifted vehicle)"
     return sheet.nominal.B_w, "data sheet"
 
@@ -206,60 +229,34 @@ def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
 LIFTED_WHEEL_PARAMETERS = ("d_vw", "d_cw")
 
 
-def lifted_wheel_friction(run_dir: str | Path) -> dict[str, tuple[float, float]] | None:
-    """The wheel joints' friction measured on the lifted vehicle (the campaign's single-axis run):
-    ``{"d_vw": (value [N m s/rad], std), "d_cw": (value [N m], std)}``, wheel side; None when the run
-    has no ``single_axis.json``.
+@dataclass(frozen=True)
+class LiftedMeasurement:
+    """What the campaign's single-axis run measured on the lifted vehicle (``single_axis.json``), wheel
+    side: ``friction`` ``{"d_vw": (value [N m s/rad], std), "d_cw": (value [N m], std)}`` pooled over the
+    wheels, and ``wheels`` ``{wheel: {"B_w" | "d_vw" | "d_cw": (value, std)}}`` each with its own drive
+    (kg m², N m s/rad, N m)."""
+
+    friction: dict[str, tuple[float, float]]
+    wheels: dict[str, dict[str, tuple[float, float]]]
+
+
+def read_lifted(run_dir: str | Path) -> LiftedMeasurement | None:
+    """The run's lifted-vehicle measurement (:class:`LiftedMeasurement`), the file read once; None when
+    the run has no ``single_axis.json``.
 
     Raises:
-        RunDirectoryError: a value or std is missing, not finite, a value is negative or a std not
-            positive (the message names the file and key)."""
+        RunDirectoryError: a value or std is missing or not finite, a B_w not positive, a friction
+            negative or a std not positive (the message names the file and key)."""
     path = Path(run_dir) / SINGLE_AXIS_JSON
     if not path.exists():
         return None
     data = read_json(path)
-    out = {}
-    for name in LIFTED_WHEEL_PARAMETERS:
-        try:
-            value = float(data["pooled"][name]["value"])
-            std = float(data["pooled"][name]["std"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise RunDirectoryError(f"{path}: pooled.{name}.value/std missing or not a number: {exc}") from None
-        if not (math.isfinite(value) and value >= 0 and math.isfinite(std) and std > 0):
-            raise RunDirectoryError(f"{path}: pooled.{name} must be a non-negative, finite value with a positive, "
-                                    f"finite std, got value {value}, std {std}")
-        out[name] = (value, std)
-    return out
-
-
-def lifted_wheels(run_dir: str | Path) -> dict[str, dict[str, tuple[float, float]]] | None:
-    """Each wheel's parameters measured on the lifted vehicle with its own drive (``single_axis.json``,
-    ``wheels``): ``{wheel: {"B_w" | "d_vw" | "d_cw": (value, std)}}`` (kg m², N m s/rad, N m, wheel
-    side); None when the run has no ``single_axis.json``.
-
-    Raises:
-        RunDirectoryError: a wheel or parameter is missing, a value or std not finite, a B_w not positive,
-            a friction negative or a std not positive (the message names the file and key)."""
-    path = Path(run_dir) / SINGLE_AXIS_JSON
-    if not path.exists():
-        return None
-    data = read_json(path)
-    out: dict[str, dict[str, tuple[float, float]]] = {}
-    for wheel in WHEELS:
-        out[wheel] = {}
-        for name in ("B_w", *LIFTED_WHEEL_PARAMETERS):
-            key = f"wheels.{wheel}.{name}"
-            try:
-                value = float(data["wheels"][wheel][name]["value"])
-                std = float(data["wheels"][wheel][name]["std"])
-            except (KeyError, TypeError, ValueError) as exc:
-                raise RunDirectoryError(f"{path}: {key}.value/std missing or not a number: {exc}") from None
-            low_ok = value > 0 if name == "B_w" else value >= 0
-            if not (math.isfinite(value) and low_ok and math.isfinite(std) and std > 0):
-                raise RunDirectoryError(f"{path}: {key} must be a finite, {'positive' if name == 'B_w' else 'non-negative'} "
-                                        f"value with a positive, finite std, got value {value}, std {std}")
-            out[wheel][name] = (value, std)
-    return out
+    friction = {name: _measured(path, data, ("pooled", name), positive=False)
+                for name in LIFTED_WHEEL_PARAMETERS}
+    wheels = {wheel: {name: _measured(path, data, ("wheels", wheel, name), positive=name == "B_w")
+                      for name in ("B_w", *LIFTED_WHEEL_PARAMETERS)}
+              for wheel in WHEELS}
+    return LiftedMeasurement(friction, wheels)
 
 
 def load_identification(path: str | Path) -> IdentificationResult:

@@ -16,7 +16,7 @@ from qomni.datasheet import DataSheet, DataSheetError
 from qomni.emulator.description import DescriptionError, VehicleDescription
 from qomni.ident.identify import identify_run
 from qomni.ident.recording import RecordingError, SignalWriter, read_signals
-from qomni.ident.rundir import (RunDirectoryError, b_w_source, lifted_wheel_friction, lifted_wheels,
+from qomni.ident.rundir import (RunDirectoryError, b_w_source, read_lifted,
                                 load_identification, load_run)
 from qomni.vehicle_interface import Measurement
 
@@ -100,31 +100,38 @@ def test_single_axis_into_a_directory_that_holds_one_is_refused_without_force(tm
 @pytest.mark.parametrize("value", [-0.121, 0.0, float("nan")])
 def test_an_impossible_single_axis_b_w_is_refused(run_dir, value):
     (run_dir / "single_axis.json").write_text(json.dumps({"pooled": {"B_w": {"value": value}}}))
-    with pytest.raises(RunDirectoryError, match="single_axis.json: pooled.B_w.value must be a positive"):
+    with pytest.raises(RunDirectoryError, match="single_axis.json: pooled.B_w must be a finite, positive value"):
         b_w_source(run_dir, DataSheet.load())
 
 
 _LIFTED = {"d_vw": {"value": 0.73, "std": 0.002}, "d_cw": {"value": 3.95, "std": 0.014}}
 
 
+def _single_axis(pooled: dict | None = None, wheels: dict | None = None) -> str:
+    """A complete single_axis.json, with ``pooled`` or ``wheels`` replaced."""
+    return json.dumps({"pooled": pooled if pooled is not None else _LIFTED,
+                       "wheels": wheels if wheels is not None else {
+                           w: {"B_w": {"value": 0.12, "std": 0.0008}, **_LIFTED} for w in ("fl", "rl", "fr", "rr")}})
+
+
 @pytest.mark.parametrize("key,field,value,message", [
-    ("d_cw", "value", -0.1, "pooled.d_cw must be a non-negative, finite value"),
-    ("d_vw", "std", 0.0, "pooled.d_vw must be a non-negative, finite value with a positive"),
+    ("d_cw", "value", -0.1, "pooled.d_cw must be a finite, non-negative value"),
+    ("d_vw", "std", 0.0, "pooled.d_vw must be a finite, non-negative value with a positive"),
     ("d_cw", "std", float("nan"), "pooled.d_cw must be"),
     ("d_vw", "value", None, "pooled.d_vw.value/std missing or not a number"),
 ])
 def test_the_lifted_wheels_friction_is_read_only_when_it_is_physical(tmp_path, key, field, value, message):
-    assert lifted_wheel_friction(tmp_path) is None                      # no single-axis run: no measurement
+    assert read_lifted(tmp_path) is None                                 # no single-axis run: no measurement
     pooled = json.loads(json.dumps(_LIFTED))
-    (tmp_path / "single_axis.json").write_text(json.dumps({"pooled": pooled}))
-    assert lifted_wheel_friction(tmp_path) == {"d_vw": (0.73, 0.002), "d_cw": (3.95, 0.014)}
+    (tmp_path / "single_axis.json").write_text(_single_axis(pooled))
+    assert read_lifted(tmp_path).friction == {"d_vw": (0.73, 0.002), "d_cw": (3.95, 0.014)}
     if value is None:
         del pooled[key][field]
     else:
         pooled[key][field] = value
-    (tmp_path / "single_axis.json").write_text(json.dumps({"pooled": pooled}))
+    (tmp_path / "single_axis.json").write_text(_single_axis(pooled))
     with pytest.raises(RunDirectoryError, match=f"single_axis.json: {message}"):
-        lifted_wheel_friction(tmp_path)
+        read_lifted(tmp_path)
 
 
 @pytest.mark.parametrize("damage,message", [
@@ -135,12 +142,12 @@ def test_the_lifted_wheels_friction_is_read_only_when_it_is_physical(tmp_path, k
 def test_each_lifted_wheel_is_read_only_when_it_is_complete_and_physical(tmp_path, damage, message):
     wheels = {w: {"B_w": {"value": 0.12, "std": 0.0008}, **json.loads(json.dumps(_LIFTED))}
               for w in ("fl", "rl", "fr", "rr")}
-    (tmp_path / "single_axis.json").write_text(json.dumps({"wheels": wheels}))
-    assert lifted_wheels(tmp_path)["fr"]["B_w"] == (0.12, 0.0008)
+    (tmp_path / "single_axis.json").write_text(_single_axis(wheels=wheels))
+    assert read_lifted(tmp_path).wheels["fr"]["B_w"] == (0.12, 0.0008)
     damage(wheels)
-    (tmp_path / "single_axis.json").write_text(json.dumps({"wheels": wheels}))
+    (tmp_path / "single_axis.json").write_text(_single_axis(wheels=wheels))
     with pytest.raises(RunDirectoryError, match=f"single_axis.json: {message}"):
-        lifted_wheels(tmp_path)
+        read_lifted(tmp_path)
 
 
 # --- 5. user text is never console markup --------------------------------------------------------------

@@ -79,7 +79,7 @@ class RuleRows:
     """What a hypothesis' ``resolve`` rule may fit on: the diagnosed run with every row a fit row
     (``all_rows``), the reference run's problem or None, the model, the correlation lag (rows) and the
     fit cache (:mod:`qomni.diagnosis.fit`); and the diagnosed run's lifted-wheel measurement
-    (:func:`qomni.ident.rundir.lifted_wheels`) or None."""
+    (:attr:`qomni.ident.rundir.LiftedMeasurement.wheels`) or None."""
 
     all_rows: object
     reference: object | None

@@ -12,10 +12,6 @@ from qomni.conventions import GRAVITY
 from ..channels import ChannelData
 from .base import Hypothesis, Magnitude, RuleRows, _project, _torque_only
 
-#: Two-sided level of the test on the slope's component along the best-observed direction: that of the
-#: presence test every named effect passes (:data:`qomni.diagnosis.fit.ALPHA`).
-ALONG_ALPHA = 1e-2
-
 
 @_torque_only
 def _incline_columns(ch: ChannelData, _):
@@ -58,7 +54,8 @@ def _across_std(c) -> float:
 
 def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
     """The incline's rule (``Hypothesis.resolve``): a slope is named only where its component along the
-    best-observed direction is there (two-sided z test at ALONG_ALPHA) and of relevant size.
+    best-observed direction is there (two-sided z test at the level of the presence test every named
+    effect passes, :data:`qomni.diagnosis.fit.ALPHA`) and of relevant size.
 
     A slope does work only along the motion; the campaign drives mostly along one world direction, so the
     force of a slope across it reaches the data only through the heading's wander (sin γ of a few mrad in
@@ -66,13 +63,15 @@ def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
     heading (anything that yaws the chassis a little while it drives), not a floor: a real slope at
     least 25° off the lateral has a component along the motion of ≥ 0.42 of its size. A named slope gets
     a note with its component along that direction and the bound across it."""
+    from ..fit import ALPHA           # the fitting machinery imports this package: import at use
+
     for c in candidates:
         if c.hypothesis.name != "incline" or not c.significant:
             continue
         along, std, angle = along_motion(c.fit.theta[-2:], np.asarray(c.fit.theta_cov)[-2:, -2:])
         z = along / std if std > 0 else math.inf
         p = float(2 * stats.norm.sf(abs(z)))
-        if p < ALONG_ALPHA and abs(along) >= RELEVANT:
+        if p < ALPHA and abs(along) >= RELEVANT:
             c.notes.append(f"slope along the best-observed direction ({math.degrees(angle):.0f}° in the world frame): "
                            f"{along:.2e} ± {std:.1e} (sin of the angle); across it the data bound it only to "
                            f"± {_across_std(c):.1e}")

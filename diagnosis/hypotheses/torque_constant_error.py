@@ -44,9 +44,10 @@ def lifted_inertia_ratio(wheels: dict, wheel: str) -> tuple[float, float]:
     """B_w of ``wheel`` over the median of the other wheels' lifted B_w, and its σ (first order, from the
     two wheels' σ).
 
-    ``wheels``: :func:`qomni.ident.rundir.lifted_wheels`. A torque-constant factor f on the wheel's drive
-    makes this 1/f: the lifted run reads that wheel's torques as 1/f of what acts on it. The median keeps
-    one faulty wheel out of the others' reference (with their mean, every wheel read off by a third of it)."""
+    ``wheels``: :attr:`qomni.ident.rundir.LiftedMeasurement.wheels`. A torque-constant factor f on the
+    wheel's drive makes this 1/f: the lifted run reads that wheel's torques as 1/f of what acts on it. The
+    median keeps one faulty wheel out of the others' reference (with their mean, every wheel read off by a
+    third of it)."""
     value, std = wheels[wheel]["B_w"]
     others = sorted(wheels[w]["B_w"] for w in wheels if w != wheel)
     median, median_std = others[len(others) // 2]
