@@ -4,10 +4,12 @@ Per cycle it
 1. estimates the state from what the bus gives: α from the steering sensors, α̇ by a filtered
    differentiator, β̇ from the drives' velocity, chassis velocities by odometry (3), and the step's
    chassis coordinate (x_ch or γ_ch) by integrating them — no ground-truth pose;
-2. computes feed-forward motor torques with the paper's law (21) and nominal parameters;
+2. takes the feed-forward motor torques of the paper's law (21) with nominal parameters, which depend on
+   the step time only and are evaluated for every cycle of the step when the controller is built;
 3. adds PD feedback on the steering angles (holding or tracking them through differential wheel torques,
    H_1ᵀB) and on the step's chassis coordinate (H_kᵀB of its column), allocated to the four motors by
-   the pseudoinverse of the stacked input rows;
+   the pseudoinverse of the stacked input rows (fixed in modes 1, 3, 4; in mode 2 a function of the
+   measured steering counts, cached);
 4. clips to the drives' torque limit.
 """
 from __future__ import annotations
