@@ -4,9 +4,10 @@ Measured in the same run, so the ratios hold on a noisy shared machine:
 1. emulator physics step vs. bare PyBullet stepping of the same URDF (same time step, no drives), also
    with every unmodelled effect on at its example magnitude;
 2. one lock-step CANopen cycle (client + server + emulator, virtual bus) vs. the bare physics of a cycle;
-3. the lock-step campaign (quick or full) vs. real time.
+3. the campaign controller's command per cycle vs. the bare physics of a cycle;
+4. the lock-step campaign (quick or full) vs. real time.
 
-2 and 3 also in CPU time of the process (all its threads): the work a cycle costs, which the other
+2 and 4 also in CPU time of the process (all its threads): the work a cycle costs, which the other
 load of a shared machine disturbs far less than the wall time.
 """
 from __future__ import annotations
@@ -95,6 +96,32 @@ def lockstep_cycle(description: VehicleDescription, cycles: int) -> tuple[float,
         return min(r[0] for r in runs), min(r[1] for r in runs)
 
 
+def controller_command(quick: bool) -> float:
+    """Wall s per ``StepController.command`` over the campaign's steps (each controller run through 500 of
+    its cycles on a measurement at its reference, quantized to the steering sensor's LSB as the bus gives
+    it), best of 3: the campaign's own share of a cycle."""
+    from qomni.datasheet import DataSheet
+    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.vehicle_interface import Measurement
+
+    sheet = DataSheet.load()
+    ts, lsb = sheet.drive.cycle_time, sheet.drive.steering_lsb
+    with tempfile.TemporaryDirectory() as tmp:
+        run = Campaign(sheet, Path(tmp) / "run", CampaignSettings.quick() if quick else CampaignSettings())
+        controllers = run.controllers
+
+    def one() -> float:
+        calls, t = 0, time.perf_counter()
+        for ctrl in controllers:
+            for j in range(min(500, ctrl.cycles)):
+                alpha = np.round(ctrl._reference_row(j * ts)[0] / lsb) * lsb
+                ctrl.command(j * ts, Measurement(j * ts, np.zeros(4), np.ones(4), np.zeros(4), alpha))
+                calls += 1
+        return (time.perf_counter() - t) / calls
+
+    return best_of(one)
+
+
 def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float, float]:
     """(emulated s, wall s, CPU s of the process) of a lock-step campaign against the embedded emulator
     over CAN."""
@@ -123,6 +150,7 @@ def main() -> None:
     every_effect = EffectSet.combine(*(EffectSet.example(name) for name in REGISTRY))
     emu_effects = emulator_step(d, steps, every_effect)
     cycle, cycle_cpu = lockstep_cycle(d, 500 if args.quick else 1500)
+    command = controller_command(args.quick)
     emulated, wall, cpu = campaign(d, args.quick)
     physics_per_cycle = bare * round(d.drive.cycle_time / 0.001)
     rows = [
@@ -135,6 +163,8 @@ def main() -> None:
          f"{cycle / physics_per_cycle:.2f} × bare physics of a cycle"),
         ("  the same, CPU time of the process (all threads)", f"{cycle_cpu * 1e6:8.1f} µs",
          f"{cycle_cpu / (bare_cpu * round(d.drive.cycle_time / 0.001)):.2f} × bare physics of a cycle (CPU)"),
+        ("campaign controller command (per cycle)", f"{command * 1e6:8.1f} µs",
+         f"{command / physics_per_cycle:.2f} × bare physics of a cycle"),
         (f"campaign ({'quick' if args.quick else 'full'}, {emulated:.1f} s emulated)", f"{wall:8.1f} s",
          f"{emulated / wall:.2f} × real time"),
         ("  the same, CPU time of the process", f"{cpu:8.1f} s", f"{emulated / cpu:.2f} × real time"),
