@@ -148,7 +148,10 @@ def phase_margin(loop, cycle_time: float) -> float:
 
     The frequency response is evaluated on a log grid up to Nyquist (python-control's
     ``frequency_response``) and the crossing interpolated; −inf when |L| never falls through 1 (no
-    crossover: not a stabilising loop for a double integrator); the margin is wrapped into [−180°, 180°).
+    crossover: not a stabilising loop for a double integrator). The phase is followed continuously from
+    the grid's low end, where the loop (an integrator times a double integrator) lies at −270°, so a dead
+    time's lag is counted in full: a loop whose phase at crossover is −540° has a margin of −360°, not
+    the 0° the angle modulo 360° would give.
     """
     omega = np.logspace(-1, math.log10(math.pi / cycle_time) - 1e-6, 4000)
     response = np.asarray(control.frequency_response(loop, omega).frdata).ravel()
@@ -158,8 +161,9 @@ def phase_margin(loop, cycle_time: float) -> float:
         return -math.inf
     i = below[0]
     w = (math.log(gain[i]) / (math.log(gain[i]) - math.log(gain[i + 1])))
-    phase = np.unwrap(np.angle(response[i:i + 2]))
-    return float((math.degrees((1 - w) * phase[0] + w * phase[1]) + 360.0) % 360.0 - 180.0)
+    phase = np.degrees(np.unwrap(np.angle(response[:i + 2])))
+    phase -= 360.0 * math.floor((phase[0] + 360.0) / 360.0)       # the low end into [−360°, 0°): −270°
+    return float((1 - w) * phase[i] + w * phase[i + 1] + 180.0)
 
 
 def delay_robust_bandwidth(bandwidth: float, damping: float, cycle_time: float, integral_ratio: float,

@@ -44,6 +44,18 @@ def test_phase_margin_agrees_with_python_control():
     assert phase_margin(loop, TS) == pytest.approx(reference, abs=0.5)
 
 
+def test_a_dead_time_longer_than_a_turn_of_phase_is_counted_in_full():
+    """At 45 rad/s a 50 ms dead time lags the crossover by more than 360°: the margin is that negative,
+    and the bandwidth the probe's longest readings get keeps falling with them (a wrapped angle read
+    42–68 ms as a margin above 30° and gave such readings the undelayed 45 rad/s)."""
+    assert _margin(S.steering_bandwidth, 0.05) < -180.0
+    bandwidths = [delay_robust_bandwidth(S.steering_bandwidth, S.damping, TS, S.steering_integral_ratio,
+                                         S.derivative_cutoff, n * TS, S.min_phase_margin)
+                  for n in range(0, 41, 4)]
+    assert all(b >= c for b, c in zip(bandwidths, bandwidths[1:]))
+    assert bandwidths[-1] < 5.0
+
+
 @pytest.mark.parametrize("n", [0, 3, 10])
 def test_the_probe_fit_recovers_a_dead_time_in_quantized_noisy_samples(n):
     rng = np.random.default_rng(n)
