@@ -254,7 +254,8 @@ class Campaign:
                 self.on_progress(done[0], self.total_cycles, "probe")
 
         start = measurement.time
-        found, measurement = self.probe.run(self.vehicle, measurement, record)
+        keep = None if self.controller_settings.probe_retunes else self.controller_settings.steering_bandwidth
+        found, measurement = self.probe.run(self.vehicle, measurement, record, settle_bandwidth=keep)
         writer.flush()
         meta["segments"].append({"name": "probe", "k": 1, "t_start": start, "t_end": measurement.time})
         meta["probe"] = asdict(found)

@@ -13,6 +13,11 @@ in the motion. So the probe, at rest in mode 1 (chassis still), for each of two 
    cycles (the loop's resolution), c by least squares;
 3. brings the steering back to where it started with gains designed for ``max_dead_time``.
 
+Those gains do not pull the steering out of its static friction: each return ends up to 0.08 rad short.
+After both pulses the probe therefore settles the steering at α = 0, where the campaign starts, in
+``SETTLE`` s (a quintic from where it stands) with the steering bandwidth just chosen (or the one the
+caller names): the campaign's first step then starts at rest where it was planned to, as without a probe.
+
 Low-speed friction rounds the onset like a dead time, and more so the weaker the pulse: its breakaway
 peak holds the joint until the torque's surplus has overcome it; a dead time reads the same at both.
 Friction only adds to the onset, so the stronger pulse's reading is taken: it holds the least friction,
@@ -46,6 +51,8 @@ MIN_FIT_CYCLES = 10
 #: Pulse amplitudes as multiples of the probe's ``acceleration``: the weaker first (gentle: a ±40 rad/s²
 #: pulse left the ideal vehicle looking inclined to the diagnosis), then twice that.
 AMPLITUDES = (1.0, 2.0)
+#: s, the final settle from where the returns left the steering to α = 0.
+SETTLE = 1.0
 
 
 @dataclass(frozen=True)
@@ -116,21 +123,24 @@ class DeadTimeProbe:
             back = quintic_alignment(moved, np.zeros(2), settle, name="probe")
             self._return.append(StepController(back, sheet, replace(s, steering_bandwidth=self.safe_bandwidth)))
         self._return_cycles = int(np.floor(settle / d.cycle_time + 1e-9)) + 1
+        self._settle_cycles = int(np.floor(SETTLE / d.cycle_time + 1e-9)) + 1
 
     @property
     def total_cycles(self) -> int:
-        return len(self.amplitudes) * (2 * self.cycles + self._return_cycles)
+        return len(self.amplitudes) * (2 * self.cycles + self._return_cycles) + self._settle_cycles
 
     def _bandwidth(self, dead_time: float) -> float:
         s, d = self.settings, self.sheet.drive
         return delay_robust_bandwidth(s.steering_bandwidth, s.damping, d.cycle_time, s.steering_integral_ratio,
                                       s.derivative_cutoff, dead_time, s.min_phase_margin)
 
-    def run(self, vehicle, measurement, on_cycle: Callable | None = None):
+    def run(self, vehicle, measurement, on_cycle: Callable | None = None, settle_bandwidth: float | None = None):
         """Run the probe on ``vehicle`` (a ``VehicleInterface``) from ``measurement`` (the last one).
 
         Args:
             on_cycle: called with (measurement, command) after every exchange (the recording).
+            settle_bandwidth: rad/s of the final settle at α = 0; default the bandwidth the probe chose (a
+                run repeating another's campaign passes the one that run used).
         Returns:
             (:class:`ProbeResult`, the last measurement).
         """
@@ -151,7 +161,18 @@ class DeadTimeProbe:
                 if on_cycle:
                     on_cycle(measurement, u)
             moved_by_pulse.append(np.array(moved))
-        return self.evaluate(moved_by_pulse), measurement
+        result = self.evaluate(moved_by_pulse)
+        # built after the pulses (its start is where they left the steering), while it stands still
+        d = self.sheet.drive
+        to_start = quintic_alignment(np.asarray(measurement.alpha, dtype=float), np.zeros(2), SETTLE, name="probe")
+        bandwidth = settle_bandwidth or result.steering_bandwidth
+        settle = StepController(to_start, self.sheet, replace(self.settings, steering_bandwidth=bandwidth))
+        for j in range(self._settle_cycles):
+            u = settle.command(j * d.cycle_time, measurement)
+            measurement = vehicle.exchange(u)
+            if on_cycle:
+                on_cycle(measurement, u)
+        return result, measurement
 
     def _reading(self, moved: np.ndarray, amplitude: float) -> dict:
         """One pulse's fit: its dead time (None: no response to fit), c, response and residual."""

@@ -97,3 +97,34 @@ def test_the_probe_takes_the_stronger_pulses_reading_whose_onset_holds_less_fric
     assert probe.evaluate([stuck, strong]).dead_time == pytest.approx(0.006)
     nothing = probe.evaluate([stuck, stuck])
     assert nothing.dead_time is None and nothing.steering_bandwidth == probe.safe_bandwidth
+
+
+@pytest.mark.parametrize("effects", [{}, {"actuator_delay": {"delay": 0.012}}])
+def test_the_probe_leaves_the_steering_at_rest_where_the_campaign_starts(effects):
+    """Its returns at the 30 ms-safe bandwidth stay in the steering's static friction (up to 0.08 rad off);
+    the final settle at the chosen bandwidth brings α to 0 before the campaign's first step, recorded as
+    probe rows, one per SYNC."""
+    from qomni.datasheet import DataSheet
+    from qomni.emulator.description import VehicleDescription
+    from qomni.emulator.effects import EffectSet
+    from qomni.embedded import embedded_vehicle
+    from qomni.ident.probe import DeadTimeProbe
+
+    sheet = DataSheet.load()
+    probe = DeadTimeProbe(sheet)
+    rows = []
+    with embedded_vehicle(VehicleDescription.load(), seed=1, effects=EffectSet.from_dict(effects)) as vehicle:
+        measurement = vehicle.exchange(np.zeros(4))
+        result, measurement = probe.run(vehicle, measurement, lambda m, u: rows.append(np.asarray(m.alpha)))
+    lsb = sheet.drive.steering_lsb
+    assert len(rows) == probe.total_cycles
+    returned = rows[probe.total_cycles - probe._settle_cycles - 1]
+    assert np.abs(returned).max() > 40 * lsb                                # where the returns leave it
+    # at the start within the proportional loop's deadband against the steering's Coulomb friction at the
+    # chosen bandwidth, d_c/(J·k_p) (∝ 1/bandwidth²), plus the sensor's noise
+    n, g = sheet.nominal, sheet.geometry
+    inertia = np.array([n.C_l, n.C_r]) + 2 * n.B_w * (g.a / g.r) ** 2
+    kp = design_pid(result.steering_bandwidth, S.damping, TS, S.steering_integral_ratio).kp
+    deadband = np.array([n.d_cl, n.d_cr]) / (inertia * kp)
+    assert np.all(np.abs(measurement.alpha) <= deadband + 2 * lsb), (measurement.alpha, deadband)
+    assert np.ptp(np.array(rows[-20:]), axis=0).max() <= 3 * lsb             # and at rest (sensor noise)
