@@ -220,7 +220,7 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
         for seg, ctrl in zip(campaign.segments, campaign.controllers):
             if steps is not None and seg.name not in steps and seg.name not in ("align", "rest"):
                 continue
-            n = int(np.floor(seg.duration / ts + 1e-9)) + 1
+            n = ctrl.cycles
             t = np.arange(n) * ts
             ref = seg.evaluate(t)
             if "alpha_v" in ref:

@@ -9,7 +9,6 @@ far stays on disk.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -184,8 +183,7 @@ class Campaign:
 
     @property
     def total_cycles(self) -> int:
-        ts = self.sheet.drive.cycle_time
-        return sum(_cycles(seg, ts) for seg in self.segments) + (self.probe.total_cycles if self.probe else 0)
+        return sum(c.cycles for c in self.controllers) + (self.probe.total_cycles if self.probe else 0)
 
     def run(self, vehicle: VehicleInterface) -> dict:
         """Execute all segments on ``vehicle`` (connected, drives enabled); returns the metadata
@@ -210,7 +208,7 @@ class Campaign:
                 done = self.probe.total_cycles
             for seg, ctrl in zip(self.segments, self.controllers):
                 start = measurement.time
-                for j in range(_cycles(seg, ts)):
+                for j in range(ctrl.cycles):
                     u = ctrl.command(j * ts, measurement)
                     measurement = self.vehicle.exchange(u)
                     writer.write(seg.name, seg.mode, measurement, u)
@@ -297,10 +295,6 @@ def _missed(vehicle) -> dict:
     """Samples the vehicle link held because their TPDO did not come: {"0x183": cycles, …} (a CAN client's
     ``missed``; empty for links without one)."""
     return {f"0x{cob:03X}": n for cob, n in sorted(getattr(vehicle, "missed", {}).items())}
-
-
-def _cycles(step: ExcitationStep, cycle_time: float) -> int:
-    return int(math.floor(step.duration / cycle_time + 1e-9)) + 1
 
 
 def _step_end_alpha(step: ExcitationStep, sheet: DataSheet) -> np.ndarray:

@@ -14,8 +14,10 @@ Per cycle it
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import Callable
 
 import numpy as np
 
@@ -67,6 +69,11 @@ class ControllerState:
     s_chassis: float  # the step's chassis coordinate by odometry
 
 
+def step_cycles(duration: float, cycle_time: float) -> int:
+    """Cycles a step of ``duration`` s takes at t = j·T_s, j = 0 … cycles − 1 (its end included)."""
+    return int(math.floor(duration / cycle_time + 1e-9)) + 1
+
+
 class StepController:
     """Tracks one ``ExcitationStep`` (modes 1, 2, 4; mode 2 with or without α_v).
 
@@ -108,8 +115,20 @@ class StepController:
 
     @property
     def cycles(self) -> int:
-        """Cycles the step takes at t = j·T_s, j = 0 … cycles − 1 (its end included)."""
-        return int(np.floor(self.step.duration / self.sheet.drive.cycle_time + 1e-9)) + 1
+        """Cycles the step takes (:func:`step_cycles`)."""
+        return step_cycles(self.step.duration, self.sheet.drive.cycle_time)
+
+    def follow(self, vehicle, measurement, on_cycle: Callable | None = None):
+        """Run the whole step on ``vehicle`` (a ``VehicleInterface``) from ``measurement`` (the last one):
+        one command and exchange per cycle, ``on_cycle(measurement, command)`` after each. Returns the last
+        measurement."""
+        ts = self.sheet.drive.cycle_time
+        for j in range(self.cycles):
+            u = self.command(j * ts, measurement)
+            measurement = vehicle.exchange(u)
+            if on_cycle:
+                on_cycle(measurement, u)
+        return measurement
 
     def retune(self, steering_bandwidth: float) -> None:
         """Set the steering loop's bandwidth (rad/s): its PID gains (:func:`design_pid`) and the

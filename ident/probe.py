@@ -40,7 +40,7 @@ import numpy as np
 
 from . import dynamics
 from .control_design import delay_robust_bandwidth
-from .controller import ControllerSettings, StepController, quintic_alignment
+from .controller import ControllerSettings, StepController, quintic_alignment, step_cycles
 from qomni.datasheet import DataSheet
 
 #: Response the fit needs at the end of the accelerating half, in steering-sensor LSB: below it the
@@ -122,12 +122,11 @@ class DeadTimeProbe:
             moved = np.full(2, a * pulse**2)                  # where a bang-bang of ±a for T each ends
             back = quintic_alignment(moved, np.zeros(2), settle, name="probe")
             self._return.append(StepController(back, sheet, replace(s, steering_bandwidth=self.safe_bandwidth)))
-        self._return_cycles = int(np.floor(settle / d.cycle_time + 1e-9)) + 1
-        self._settle_cycles = int(np.floor(SETTLE / d.cycle_time + 1e-9)) + 1
+        self._settle_cycles = step_cycles(SETTLE, d.cycle_time)
 
     @property
     def total_cycles(self) -> int:
-        return len(self.amplitudes) * (2 * self.cycles + self._return_cycles) + self._settle_cycles
+        return sum(2 * self.cycles + back.cycles for back in self._return) + self._settle_cycles
 
     def _bandwidth(self, dead_time: float) -> float:
         s, d = self.settings, self.sheet.drive
@@ -155,24 +154,14 @@ class DeadTimeProbe:
                     moved.append(np.mean(np.asarray(measurement.alpha) - start))
                 if on_cycle:
                     on_cycle(measurement, u)
-            for j in range(self._return_cycles):
-                u = back.command(j * self.sheet.drive.cycle_time, measurement)
-                measurement = vehicle.exchange(u)
-                if on_cycle:
-                    on_cycle(measurement, u)
+            measurement = back.follow(vehicle, measurement, on_cycle)
             moved_by_pulse.append(np.array(moved))
         result = self.evaluate(moved_by_pulse)
         # built after the pulses (its start is where they left the steering), while it stands still
-        d = self.sheet.drive
         to_start = quintic_alignment(np.asarray(measurement.alpha, dtype=float), np.zeros(2), SETTLE, name="probe")
         bandwidth = settle_bandwidth or result.steering_bandwidth
         settle = StepController(to_start, self.sheet, replace(self.settings, steering_bandwidth=bandwidth))
-        for j in range(self._settle_cycles):
-            u = settle.command(j * d.cycle_time, measurement)
-            measurement = vehicle.exchange(u)
-            if on_cycle:
-                on_cycle(measurement, u)
-        return result, measurement
+        return result, settle.follow(vehicle, measurement, on_cycle)
 
     def _reading(self, moved: np.ndarray, amplitude: float) -> dict:
         """One pulse's fit: its dead time (None: no response to fit), c, response and residual."""
