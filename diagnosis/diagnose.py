@@ -195,9 +195,9 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     taken = {c.hypothesis.name for c in accepted}
     head = sum(len(f.hypothesis.parameters) for f in accepted_fits)
     found = []
-    for h in hypotheses:
-        if h.name in taken:
-            continue
+    remaining = [h for h in hypotheses if h.name not in taken]
+    alpha = fitting.alpha_more(len(remaining))
+    for h in remaining:
         joint = combine(accepted_fits, h)
         own = levels.get(h.label)
         reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
@@ -210,7 +210,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = cand.physical  # the joint hypothesis checks the added effect's part
-        significant = cand.p_value < fitting.ALPHA_MORE and fitting.present(cand) and physical \
+        significant = cand.p_value < alpha and fitting.present(cand) and physical \
             and _confirms_further(cand.evaluation, floor)
         sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
                                 cand.p_value, cand.evaluation, {}, physical, significant,

@@ -38,10 +38,18 @@ from .hypotheses.base import Hypothesis, Magnitude, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate
 from .problem import Fit, Problem, cached_columns, channel_lag
 
-#: Significance level of the F test (first effect; further effects in forward selection: ALPHA_MORE).
+#: Significance level of the F test (first effect; further effects in forward selection: alpha_more).
 #: The F test with n/L effective rows is conservative; the held-out shrinkage is the second gate.
 ALPHA = 1e-2
-ALPHA_MORE = 1e-8
+
+
+def alpha_more(tested: int) -> float:
+    """Significance level of a further effect in forward selection: ALPHA over the ``tested`` hypotheses
+    re-tested in that round (Bonferroni). The first round's winner is ranked by held-out removal among
+    the effects that pass ALPHA; a further one is picked from what is left once it is in the model,
+    where the accepted effect's own misfit gives every remaining hypothesis a chance to fit something,
+    so the family of tests is held at ALPHA as a whole."""
+    return ALPHA / max(int(tested), 1)
 #: Prior on the base parameters: σ = PRIOR_STD_FACTOR·σ_model. On ideal runs of other seeds the base fit
 #: moves them by at most 1.1 of that. A wider prior lets a base parameter absorb an effect collinear with
 #: it where the campaign shows it (heavy steering units: C_ch in the rotation).

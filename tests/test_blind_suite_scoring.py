@@ -151,3 +151,58 @@ def test_wheel_variant_alone_significant_is_placed_in_the_steering_joints_when_u
     wheels, steering = _stribeck("joints=wheels", True), _stribeck("joints=steering", False)
     _tell_friction_joints_apart([steering, wheels], lambda v_s: WHEEL_FRICTION_Z + 0.4)
     assert wheels.significant and not steering.significant
+
+
+def _both(theta, std, theta0=(0.0, 0.0), physical=True):
+    from types import SimpleNamespace as NS
+
+    from qomni.diagnosis.evaluation import Evaluation
+    ev = Evaluation([], 100.0, 50.0, "steer_left/alpha_l", 0.3, (0.0, 0.5))
+    cov = np.diag(np.square(std))
+    return NS(hypothesis=NS(name="stribeck", variant="joints=both"), significant=True, p_value=1e-3,
+              physical=physical, notes=[], evaluation=ev, from_model=ev, presence_p=1e-6,
+              fit=NS(nonlinear=0.05, theta=np.array(theta), theta_cov=cov, theta0=np.array(theta0)))
+
+
+def test_friction_in_both_joints_is_named_where_the_steering_steps_need_more_than_the_wheels_give():
+    """The unsteered steps place friction in the wheel joints; the both-joints fit, whose wheel coefficient
+    they hold, still needs a steering coefficient beyond the reference run's -> both joints, in place of
+    the variant the placement chose. Without that excess, or without the wheel joints placed, the
+    single-joint verdict stays; the both-joints variant is never named by its own test."""
+    from qomni.diagnosis.hypotheses.stribeck import STEERING_BEYOND_WHEELS_Z, WHEEL_FRICTION_Z, \
+        tell_friction_joints_apart
+    z_w = WHEEL_FRICTION_Z + 1.0
+    # steering coefficient 1.2 beyond a reference level of 0.4, σ 0.2: z = 4
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w)
+    assert both.significant and not wheels.significant and not steering.significant
+    assert "z = 4.0" in both.notes[0] and "1.2" in both.notes[0]
+    # the same fit, but the steering coefficient only just at the reference's level: wheel joints alone
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 0.4 + 0.2 * (STEERING_BEYOND_WHEELS_Z - 0.1)], [0.3, 0.2],
+                                    theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w)
+    assert wheels.significant and not steering.significant and not both.significant
+    assert "not named" in both.notes[0]
+    # the unsteered steps do not place friction in the wheel joints: the steering joints, not both
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: WHEEL_FRICTION_Z - 0.5)
+    assert steering.significant and not wheels.significant and not both.significant
+    # a both-joints fit that passed its own test but no single variant did: nothing named
+    wheels, steering, both = (_stribeck("joints=wheels", False), _stribeck("joints=steering", False),
+                              _both([1.0, 1.2], [0.3, 0.2]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w)
+    assert not (wheels.significant or steering.significant or both.significant)
+    # physically impossible (a negative coefficient): not named
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([-0.2, 1.2], [0.3, 0.2], physical=False))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w)
+    assert wheels.significant and not both.significant
+
+
+def test_a_further_effect_is_tested_at_the_first_rounds_level_shared_over_the_hypotheses_left():
+    from qomni.diagnosis.fit import ALPHA, alpha_more
+    assert alpha_more(16) == pytest.approx(ALPHA / 16)
+    assert alpha_more(1) == ALPHA and alpha_more(0) == ALPHA

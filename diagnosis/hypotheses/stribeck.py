@@ -1,6 +1,8 @@
 """Stribeck friction: a breakaway peak d_c·exp(−(v/v_s)²) in the wheel or the steering joints, v_s profiled."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from qomni.conventions import EPSILON as EPS_SIGN
@@ -58,11 +60,23 @@ def _stribeck_steering_columns(ch: ChannelData, v_s):
     return _project(ch, Q, smooth=True)[:, None]
 
 
+def _stribeck_both_columns(ch: ChannelData, v_s):
+    """(N, 2): the wheel joints' column and the steering joints' at one Stribeck velocity."""
+    wheels, steering = _stribeck_wheel_columns(ch, v_s), _stribeck_steering_columns(ch, v_s)
+    if wheels is None and steering is None:
+        return None
+    n = len(ch.y)
+    return np.hstack([np.zeros((n, 1)) if c is None else c for c in (wheels, steering)])
+
+
 #: One-sided z (5 %) the wheel joints' Stribeck level must reach in the steps without steering motion
 #: (modes 2–4), beyond the reference run's level there, to be preferred over the steering joints' variant.
 #: The level is fitted on all of those steps' rows: the placement only chooses between two variants
 #: whose significance the steering steps' fit rows established.
 WHEEL_FRICTION_Z = 1.645
+#: One-sided z (5 %) the steering joints' coefficient of the both-joints fit must reach beyond the
+#: reference run's level for friction in both joints to be named (:func:`_in_both_joints`).
+STEERING_BEYOND_WHEELS_Z = 1.645
 
 
 def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
@@ -79,17 +93,67 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
     friction do not. The same holds when only the wheel variant passes the test of the steering steps
     and the steering variant confirms on held-out data as well: the steering variant is then reported,
-    with that test's significance. When it does not confirm, the wheel variant stays."""
-    from ..evaluation import MIN_SHRINK   # the fitting machinery imports this package: import at use
-    from ..fit import present
+    with that test's significance. When it does not confirm, the wheel variant stays.
 
+    Friction in both joints at once: where the unsteered steps place friction in the wheel joints
+    (``z`` at the bar) and the both-joints variant's fit, whose wheel coefficient those steps hold,
+    still needs a steering-joint coefficient beyond the reference run's in the steering steps, the
+    both-joints variant is named instead (:func:`_in_both_joints`). It is never named by its own test."""
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
+    both = by_variant.get("joints=both")
+    if both is not None:
+        both.significant = False        # named by this rule alone, below
     if wheels is None or steering is None or not (steering.significant or wheels.significant):
         return
     z = unsteered_z(wheels.fit.nonlinear)
     if z is None:
         return
+    _wheels_or_steering(wheels, steering, z)
+    if both is not None and z >= WHEEL_FRICTION_Z and (wheels.significant or steering.significant):
+        _in_both_joints(both, wheels, steering, z)
+
+
+def _steering_beyond_wheels_z(both) -> float:
+    """One-sided z of the both-joints fit's steering coefficient (its last) beyond the reference run's
+    level: the steering joints' friction the steering steps need beyond what the wheel joints' level,
+    held by the steps without steering motion in the same fit, explains there."""
+    fit = both.fit
+    t0 = 0.0 if fit.theta0 is None else float(np.asarray(fit.theta0)[-1])
+    return float((fit.theta[-1] - t0) / math.sqrt(max(fit.theta_cov[-1, -1], 1e-300)))
+
+
+def _in_both_joints(both, wheels, steering, z: float) -> None:
+    """Name the both-joints variant in place of the single-joint one the placement chose, when the
+    steering joints' coefficient of the both-joints fit exceeds the reference run's level by
+    STEERING_BEYOND_WHEELS_Z: the wheel joints are placed by the steps without steering motion (``z``),
+    and the steering steps need more low-speed friction than those wheel joints give them."""
+    from ..fit import present              # the fitting machinery imports this package: import at use
+
+    z_s = _steering_beyond_wheels_z(both)
+    if z_s < STEERING_BEYOND_WHEELS_Z or not both.physical or not present(both):
+        both.notes.append(f"the steering steps need no steering-joint friction beyond the wheel joints' "
+                          f"(z = {z_s:.1f} < {STEERING_BEYOND_WHEELS_Z}): not named")
+        return
+    chosen = wheels if wheels.significant else steering
+    both.significant = True
+    both.notes.append(f"the wheel joints' level in the steps without steering motion exceeds the reference "
+                      f"run's by z = {z:.1f}, and the steering steps need steering-joint friction beyond it "
+                      f"(z = {z_s:.1f}); steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
+                      f"significance from the {chosen.hypothesis.variant} variant's test "
+                      f"(p = {chosen.p_value:.1e})")
+    for single in (wheels, steering):
+        if single.significant:
+            single.significant = False
+            single.notes.append("the both-joints variant is preferred: friction in the wheel and the "
+                                f"steering joints (z = {z:.1f} and {z_s:.1f})")
+
+
+def _wheels_or_steering(wheels, steering, z: float) -> None:
+    """The placement between the two single-joint variants (:func:`tell_friction_joints_apart`)."""
+    from ..evaluation import MIN_SHRINK   # the fitting machinery imports this package: import at use
+    from ..fit import present
+
     if z < WHEEL_FRICTION_Z:
         if not wheels.significant:
             return
@@ -156,5 +220,12 @@ STRIBECK_STEERING = Hypothesis(
     STRIBECK_VELOCITIES, magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (steering joints)"),
     physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
 
+STRIBECK_BOTH = Hypothesis(
+    "stribeck", "joints=both", ("breakaway_excess_wheels", "breakaway_excess_steering"),
+    _stribeck_both_columns, STRIBECK_VELOCITIES,
+    magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (wheel joints; the steering joints' in the notes)"),
+    physical=lambda t: t[0] > 0 and t[1] > 0, nonlinear_unit="rad/s (Stribeck velocity)",
+    resolve=resolve_joints)
+
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
-HYPOTHESES = (STRIBECK_WHEELS, STRIBECK_STEERING,)
+HYPOTHESES = (STRIBECK_WHEELS, STRIBECK_STEERING, STRIBECK_BOTH)
