@@ -50,6 +50,8 @@ def alpha_more(tested: int) -> float:
     where the accepted effect's own misfit gives every remaining hypothesis a chance to fit something,
     so the family of tests is held at ALPHA as a whole."""
     return ALPHA / max(int(tested), 1)
+
+
 #: Prior on the base parameters: σ = PRIOR_STD_FACTOR·σ_model. On ideal runs of other seeds the base fit
 #: moves them by at most 1.1 of that. A wider prior lets a base parameter absorb an effect collinear with
 #: it where the campaign shows it (heavy steering units: C_ch in the rotation).
@@ -359,10 +361,14 @@ def level_z(problem: Problem, model: IdentificationResult, h: Hypothesis, nonlin
     if len(h.parameters) != 1:
         raise ValueError(f"{h.label}: level_z needs a one-coefficient hypothesis")
     fit = solve(problem, model, h, nonlinear, lag, cache, theta0=theta0)
-    if fit is None:
-        return None
-    t0 = 0.0 if theta0 is None else float(np.asarray(theta0)[0])
-    return float((fit.theta[0] - t0) / math.sqrt(max(fit.theta_cov[0, 0], 1e-300)))
+    return None if fit is None else coefficient_z(fit, 0)
+
+
+def coefficient_z(fit: Fit, index: int) -> float:
+    """One-sided z of coefficient ``index`` of ``fit`` beyond its reference level (``fit.theta0``, 0 when
+    none): (θ_i − θ₀,i)/σ_i with σ_i from ``fit.theta_cov``."""
+    t0 = 0.0 if fit.theta0 is None else float(np.asarray(fit.theta0)[index])
+    return float((fit.theta[index] - t0) / math.sqrt(max(fit.theta_cov[index, index], 1e-300)))
 
 
 def reference_levels(problem: Problem, model: IdentificationResult, hypotheses, lag: int,

@@ -1,8 +1,6 @@
 """Stribeck friction: a breakaway peak d_c·exp(−(v/v_s)²) in the wheel or the steering joints, v_s profiled."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from qomni.conventions import EPSILON as EPS_SIGN
@@ -114,23 +112,16 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
         _in_both_joints(both, wheels, steering, z)
 
 
-def _steering_beyond_wheels_z(both) -> float:
-    """One-sided z of the both-joints fit's steering coefficient (its last) beyond the reference run's
-    level: the steering joints' friction the steering steps need beyond what the wheel joints' level,
-    held by the steps without steering motion in the same fit, explains there."""
-    fit = both.fit
-    t0 = 0.0 if fit.theta0 is None else float(np.asarray(fit.theta0)[-1])
-    return float((fit.theta[-1] - t0) / math.sqrt(max(fit.theta_cov[-1, -1], 1e-300)))
-
-
 def _in_both_joints(both, wheels, steering, z: float) -> None:
     """Name the both-joints variant in place of the single-joint one the placement chose, when the
     steering joints' coefficient of the both-joints fit exceeds the reference run's level by
     STEERING_BEYOND_WHEELS_Z: the wheel joints are placed by the steps without steering motion (``z``),
     and the steering steps need more low-speed friction than those wheel joints give them."""
-    from ..fit import present              # the fitting machinery imports this package: import at use
+    from ..fit import coefficient_z, present  # the fitting machinery imports this package: import at use
 
-    z_s = _steering_beyond_wheels_z(both)
+    # the steering coefficient (the fit's last) beyond the reference run's: what the steering steps need
+    # beyond the wheel joints' level, which the steps without steering motion hold in the same fit
+    z_s = coefficient_z(both.fit, -1)
     if z_s < STEERING_BEYOND_WHEELS_Z or not both.physical or not present(both):
         both.notes.append(f"the steering steps need no steering-joint friction beyond the wheel joints' "
                           f"(z = {z_s:.1f} < {STEERING_BEYOND_WHEELS_Z}): not named")
