@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import os
 import sys
 
@@ -41,10 +42,30 @@ with _c_stdout_silenced():
     from pybullet_utils.bullet_client import BulletClient as _BulletClient  # noqa: E402
 
 
+class _BoundClient(_BulletClient):
+    """pybullet_utils' client with each pybullet function bound to the client id once.
+
+    ``BulletClient.__getattr__`` builds a new ``functools.partial`` (after ``inspect.isbuiltin``) at every
+    call, a few µs each on a path that calls PyBullet several times per 1 ms physics step. Here the partial
+    is kept in the instance on first use, so later look-ups never reach ``__getattr__``. ``disconnect``
+    is not kept: looking it up marks the client gone (the base class) and drops the kept functions, so no
+    later call reaches a client that reuses the id.
+    """
+
+    def __getattr__(self, name):
+        attribute = super().__getattr__(name)
+        if name == "disconnect":
+            for kept in [k for k, v in vars(self).items() if isinstance(v, functools.partial)]:
+                del self.__dict__[kept]
+        elif isinstance(attribute, functools.partial):
+            self.__dict__[name] = attribute
+        return attribute
+
+
 def bullet_client(gui: bool = False) -> _BulletClient:
     """A new PyBullet client of its own (DIRECT, or GUI with a display), banner-free."""
     with _c_stdout_silenced():
-        return _BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        return _BoundClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
 
 
 __all__ = ["pybullet", "bullet_client"]

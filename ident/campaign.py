@@ -212,7 +212,7 @@ class Campaign:
                     u = ctrl.command(j * ts, measurement)
                     measurement = self.vehicle.exchange(u)
                     writer.write(seg.name, seg.mode, measurement, u)
-                    if np.any(np.abs(measurement.alpha) > limit):
+                    if max(map(abs, measurement.alpha)) > limit:
                         raise CampaignAborted(
                             f"steering angle {np.round(measurement.alpha, 3)} rad near the stops "
                             f"during '{seg.name}'")

@@ -109,6 +109,9 @@ class StepController:
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
         self._chassis_terms_at = lru_cache(maxsize=4096)(self._chassis_terms_uncached)
+        # odometry (3) at the measured α: steering sensor counts, few distinct values per step
+        self._velocity_map_at = lru_cache(maxsize=4096)(
+            lambda alpha_l, alpha_r: odometry.chassis_velocity_map(np.array([alpha_l, alpha_r]), sheet.geometry))
         self._fixed_chassis_terms = self._chassis_terms_uncached(0.0, 0.0) if self.k in (3, 4) else None
         self._plan = self._planned(np.arange(self.cycles) * d.cycle_time)
         self._warm_up()
@@ -193,11 +196,12 @@ class StepController:
     # -- one cycle ----------------------------------------------------------------------------
     def estimate(self, measurement) -> ControllerState:
         """Update the state estimate from one measurement (the client's ``Measurement``)."""
-        g, d = self.sheet.geometry, self.sheet.drive
+        d = self.sheet.drive
         alpha = np.asarray(measurement.alpha, dtype=float)
         alpha_dot = self._dalpha.update(alpha)
         beta_dot = np.asarray(measurement.motor_velocity, dtype=float) / d.i_G
-        velocity = odometry.chassis_velocity(alpha[None], alpha_dot[None], beta_dot[None], g)[0]
+        rates = np.concatenate([alpha_dot, beta_dot])
+        velocity = self._velocity_map_at(float(alpha[0]), float(alpha[1])) @ rates
         if self.state is not None:
             self._s_chassis += self._chassis_rate(velocity) * d.cycle_time
         self.state = ControllerState(alpha, alpha_dot, beta_dot, velocity, self._s_chassis)

@@ -43,6 +43,29 @@ def chassis_velocity(alpha, alpha_dot, beta_dot, geometry) -> np.ndarray:
     return np.linalg.solve(AtA, Atb[..., None])[..., 0]
 
 
+def chassis_velocity_map(alpha, geometry) -> np.ndarray:
+    """The linear map of (3) at one configuration: q_dot_ch = P (alpha_dot, beta_dot).
+
+    P = -A_ch^+(alpha) [A_alpha A_beta], so that ``P @ np.concatenate([alpha_dot, beta_dot])`` is
+    :func:`chassis_velocity` of that sample (equal to rounding). For a controller that meets the same
+    measured steering angles cycle after cycle (sensor counts) and keeps P per configuration.
+
+    Args:
+        alpha: (2,) steering angles, rad. geometry: l, b, a, r.
+    Returns:
+        (3, 6): rows x_dot, y_dot [m/s] and gamma_dot [rad/s]; columns alpha_l_dot, alpha_r_dot [rad/s]
+        and the four beta_dot (fl, rl, fr, rr) [rad/s].
+    Raises:
+        ValueError: alpha is not two angles.
+    """
+    alpha = np.asarray(alpha, dtype=float)
+    if alpha.shape != (2,):
+        raise ValueError(f"alpha must have shape (2,), got {alpha.shape}")
+    a = _kin.constraint_matrix(alpha[None], geometry)[0]
+    a_ch = a[:, :3]
+    return -np.linalg.solve(a_ch.T @ a_ch, a_ch.T @ a[:, 3:])
+
+
 def world_velocity(gamma, qd_ch) -> np.ndarray:
     """World-frame velocities (x_w_dot, y_w_dot, gamma_dot), shape (N, 3), from the chassis-frame
     q_dot_ch (N, 3) at yaw angles gamma (N,) rad."""
@@ -115,4 +138,4 @@ def odometry(t, alpha, beta, geometry, pose0=(0.0, 0.0, 0.0)) -> tuple[np.ndarra
     return integrate_pose(t, qd_ch, pose0), qd_ch
 
 
-__all__ = ["chassis_velocity", "world_velocity", "integrate_pose", "odometry"]
+__all__ = ["chassis_velocity", "chassis_velocity_map", "world_velocity", "integrate_pose", "odometry"]

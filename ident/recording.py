@@ -81,6 +81,11 @@ class Signals:
         return [str(n) for n in names[np.argsort(first)]]
 
 
+def _floats(values) -> list[float]:
+    """Python floats of a 1-D array or sequence."""
+    return np.asarray(values, dtype=float).tolist()
+
+
 def header() -> list[str]:
     return [f"{name} [{unit}]" for name, unit in COLUMNS]
 
@@ -114,10 +119,11 @@ class SignalWriter:
             motor_torque_cmd: (4,) commanded motor torque in N m.
         """
         m = measurement
+        # Python floats (``tolist``): the csv module writes a float as its repr, the shortest text that
+        # reads back to the same double; a numpy scalar would be written as its own repr.
         self._csv.writerow([
-            repr(float(m.time)), step, int(k), *map(repr, map(float, m.alpha)),
-            *map(repr, map(float, m.motor_position)), *map(repr, map(float, m.motor_velocity)),
-            *map(repr, map(float, m.motor_torque)), *map(repr, map(float, motor_torque_cmd)),
+            float(m.time), step, int(k), *_floats(m.alpha), *_floats(m.motor_position),
+            *_floats(m.motor_velocity), *_floats(m.motor_torque), *_floats(motor_torque_cmd),
         ])
         self.rows += 1
 

@@ -156,3 +156,21 @@ def test_the_emulator_fills_the_servers_plant_contract():
         assert isinstance(emu, Plant)
         reading = emu.read_sensors()
         assert reading.motor_position.shape == (4,) and reading.steering_position.shape == (2,)
+
+
+def test_the_physics_client_binds_each_function_once_and_still_disconnects():
+    """The emulator's PyBullet client keeps a function bound to its client id after the first look-up
+    (the per-step calls skip pybullet_utils' per-call partial); ``disconnect`` is never kept, so the
+    client knows it is gone, drops what it kept, and a later call fails instead of reaching a client that
+    reuses the id."""
+    import pybullet
+
+    from qomni.emulator.bullet import bullet_client
+
+    pb = bullet_client()
+    first = pb.getNumBodies
+    assert pb.getNumBodies is first and first() == 0
+    pb.disconnect()
+    assert "disconnect" not in vars(pb) and "getNumBodies" not in vars(pb) and pb._client == -1
+    with pytest.raises(pybullet.error):
+        pb.getNumBodies()

@@ -78,8 +78,9 @@ def test_errors():
         O.odometry([0, 1], np.zeros((2, 2)), np.zeros((2, 3)), G)
 
 
-def test_one_sample_equals_the_batch():
-    """The controller's per-cycle call (one sample, 2-D products) gives the batch's velocities."""
+def test_one_sample_and_the_map_of_one_configuration_equal_the_batch():
+    """A single sample (2-D products) and the controller's cached map P(α) (3, 6) applied to (α̇, β̇) give
+    the batch's velocities of (3)."""
     rng = np.random.default_rng(5)
     alpha = rng.uniform(-1.4, 1.4, (50, 2))
     alpha_dot, beta_dot = rng.normal(size=(50, 2)), rng.normal(size=(50, 4))
@@ -88,3 +89,9 @@ def test_one_sample_equals_the_batch():
         one = O.chassis_velocity(alpha[i:i + 1], alpha_dot[i:i + 1], beta_dot[i:i + 1], G)
         assert one.shape == (1, 3)
         np.testing.assert_allclose(one[0], batch[i], rtol=1e-12, atol=1e-14)
+        p = O.chassis_velocity_map(alpha[i], G)
+        assert p.shape == (3, 6)
+        np.testing.assert_allclose(p @ np.concatenate([alpha_dot[i], beta_dot[i]]), batch[i],
+                                   rtol=1e-12, atol=1e-14)
+    with pytest.raises(ValueError, match="alpha"):
+        O.chassis_velocity_map(np.zeros(3), G)
