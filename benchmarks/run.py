@@ -19,12 +19,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from pybullet_utils.bullet_client import BulletClient
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))                 # this checkout's qomni, not an installed one
 
-from qomni.emulator.bullet import pybullet  # noqa: E402
+from qomni.emulator.bullet import bullet_client, pybullet  # noqa: E402
 
 from qomni.emulator.description import VehicleDescription  # noqa: E402
 from qomni.emulator.effects import REGISTRY, EffectSet  # noqa: E402
@@ -44,7 +43,7 @@ def bare_pybullet_step(description: VehicleDescription, steps: int) -> float:
 
 def bare_pybullet_step_times(description: VehicleDescription, steps: int) -> tuple[float, float]:
     """(wall s, CPU s) per bare PyBullet step of the vehicle's URDF, each the best of 3 runs."""
-    pb = BulletClient(connection_mode=pybullet.DIRECT)
+    pb = bullet_client()                    # the emulator's: banner-free, functions bound once
     pb.setPhysicsEngineParameter(fixedTimeStep=0.001, numSubSteps=0, numSolverIterations=50)
     pb.setGravity(0, 0, -9.81)
     pb.createMultiBody(0, pb.createCollisionShape(pybullet.GEOM_PLANE))
