@@ -8,14 +8,30 @@ writes one or several files at once; the suffix picks the format: :class:`can.BL
 ``canplayer`` and ``log2asc`` read it), and python-can's other formats (``.asc``, ``.csv``, ``.trc``, …)
 through :class:`can.Logger`.
 
+The writers run in a process of their own (``python -m qomni.hil.tools.recorder FD``, a fresh
+interpreter fed over a socket pair): python-can's writers format and pack every frame in Python, about
+7 µs per frame for a BLF and a candump file together, which is 15 frames and a fifth of a lock-step
+campaign's cycle. The master's thread only packs each frame into a batch (timestamp, identifier,
+flags, DLC, data; :data:`_FRAME`) and hands the batch over every :data:`BATCH_FRAMES` frames or
+:data:`BATCH_AGE` seconds, whichever comes first; :meth:`BusRecorder.stop` hands over the rest and waits
+until every file is flushed and closed. The files are what the same writers make in the master's
+process: the frames' fields cross the socket unchanged.
+
 :func:`replay` sends a recorded log onto a bus with its original timing (:class:`can.LogReader`,
 :class:`can.MessageSync`).
 """
 from __future__ import annotations
 
 import logging
+import os
+import pickle
+import socket
+import struct
+import subprocess
+import sys
 import threading
 import time
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -24,19 +40,33 @@ import can
 logger = logging.getLogger(__name__)
 
 
+#: A frame in a batch: timestamp [s], arbitration ID, flags (_FLAGS bits), DLC, data length; then the data.
+_FRAME = struct.Struct("<dIBBB")
+_FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_rx", "is_fd", "bitrate_switch",
+          "error_state_indicator")
+#: Frames per batch handed to the writer process, and the age [s] after which a batch goes anyway.
+BATCH_FRAMES = 512
+BATCH_AGE = 0.1
+#: s the writer process gets to open its files, and to write and close them on stop.
+WRITER_TIMEOUT = 60.0
+_OK, _ERROR, _STOP = b"K", b"E", b"S"
+
+
 class BusRecorder(can.Listener):
-    """Thread-safe log writer for frames in both directions.
+    """Thread-safe log writer for frames in both directions; the files are written by a process of its
+    own (module docstring).
 
     Args:
         path: log file, or several (each gets every frame); the suffix selects the format (module
             docstring).
         channel: log channel number written for every frame.
     Raises:
-        ValueError: unknown suffix (from :class:`can.Logger`).
+        ValueError: unknown suffix (from :class:`can.Logger`); OSError: a file cannot be created;
+        RuntimeError: the writer process did not start.
     Attributes:
         path: the first log file; paths: all of them.
-        frames: number of frames written so far.
-        errors: number of frames the writer failed on.
+        frames: number of frames handed to the writers so far.
+        errors: number of frames the writers failed on (known once :meth:`stop` returned).
     """
 
     def __init__(self, path: str | Path | Sequence[str | Path], channel: int = 1):
@@ -45,38 +75,50 @@ class BusRecorder(can.Listener):
             raise ValueError("BusRecorder needs at least one log file")
         self.path = self.paths[0]
         self.channel = channel
-        self._writers = []
-        try:
-            for p in self.paths:
-                self._writers.append(can.BLFWriter(p) if p.suffix.lower() == ".blf" else can.Logger(p))
-        except BaseException:
-            for writer in self._writers:
-                writer.stop()
-            raise
         self._lock = threading.Lock()
-        self._open = True
+        self._batch = bytearray()
+        self._batch_frames = 0
+        self._batch_since = 0.0
         self.frames = 0
         self.errors = 0
+        mine, child = socket.socketpair()
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+        try:
+            self._process = subprocess.Popen([sys.executable, "-m", __name__, str(child.fileno())],
+                                             pass_fds=[child.fileno()], env=env)
+        finally:
+            child.close()
+        self._conn = Connection(mine.detach())
+        self._open = True
+        try:
+            self._conn.send_bytes(pickle.dumps(([str(p) for p in self.paths], channel)))
+            answer = self._answer()
+        except BaseException:
+            self._abandon()
+            raise
+        if answer[:1] != _OK:
+            self._abandon()
+            raise pickle.loads(answer[1:])
 
     def on_message_received(self, msg: can.Message) -> None:
-        """Record a received frame (called by the notifier thread). Never raises: a failing writer must
-        not stop the master's reception; failures are counted in ``errors`` and logged once."""
+        """Record a received frame (called by the notifier thread). Never raises: a recorder whose
+        writer process is gone counts the frames it cannot hand over in ``errors`` and logs once."""
+        data = bytes(msg.data or b"")
+        flags = 0
+        for bit, name in enumerate(_FLAGS):
+            if getattr(msg, name):
+                flags |= 1 << bit
         with self._lock:
             if not self._open:
                 return
-            # All frames go to one log channel: python-can writers derive a number from the bus's
-            # channel name (e.g. digits of a virtual channel), which need not fit the format.
-            original, msg.channel = msg.channel, self.channel
-            try:
-                for writer in self._writers:
-                    writer.on_message_received(msg)
-                self.frames += 1
-            except Exception:                      # noqa: BLE001
-                self.errors += 1
-                if self.errors == 1:
-                    logger.exception("bus recorder %s: cannot write a frame", self.path)
-            finally:
-                msg.channel = original
+            if not self._batch_frames:
+                self._batch_since = time.monotonic()
+            self._batch += _FRAME.pack(msg.timestamp, msg.arbitration_id, flags, msg.dlc, len(data))
+            self._batch += data
+            self._batch_frames += 1
+            self.frames += 1
+            if self._batch_frames >= BATCH_FRAMES or time.monotonic() - self._batch_since > BATCH_AGE:
+                self._hand_over()
 
     def on_transmit(self, msg: can.Message) -> None:
         """Record a frame this master sent; stamps it now and marks it as transmitted (``is_rx=False``)."""
@@ -85,12 +127,110 @@ class BusRecorder(can.Listener):
         self.on_message_received(msg)
 
     def stop(self) -> None:
-        """Flush and close the file; idempotent, later frames are ignored."""
+        """Hand over the last frames, wait until every file is flushed and closed; idempotent, later
+        frames are ignored."""
         with self._lock:
-            if self._open:
-                self._open = False
-                for writer in self._writers:
-                    writer.stop()
+            if not self._open:
+                return
+            self._hand_over()
+            self._open = False
+            try:
+                self._conn.send_bytes(_STOP)
+                answer = self._answer()
+                if answer[:1] == _OK:
+                    self.errors += int.from_bytes(answer[1:], "little")
+            except (OSError, EOFError, RuntimeError) as exc:
+                logger.error("bus recorder %s: the writer process did not finish: %s", self.path, exc)
+            finally:
+                self._abandon()
+
+    # -- internals ------------------------------------------------------------------------------
+    def _hand_over(self) -> None:
+        if not self._batch_frames:
+            return
+        try:
+            self._conn.send_bytes(self._batch)
+        except (OSError, ValueError):
+            self.errors += self._batch_frames
+            if self.errors == self._batch_frames:
+                logger.error("bus recorder %s: the writer process is gone (exit code %s)", self.path,
+                             self._process.poll())
+        self._batch = bytearray()
+        self._batch_frames = 0
+
+    def _answer(self) -> bytes:
+        if not self._conn.poll(WRITER_TIMEOUT):
+            raise RuntimeError(f"bus recorder {self.path}: no answer from the writer process within "
+                               f"{WRITER_TIMEOUT:.0f} s")
+        return self._conn.recv_bytes()
+
+    def _abandon(self) -> None:
+        self._open = False
+        self._conn.close()
+        try:
+            self._process.wait(WRITER_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+
+def _open_writers(paths: list[str]) -> list:
+    writers = []
+    try:
+        for p in map(Path, paths):
+            writers.append(can.BLFWriter(p) if p.suffix.lower() == ".blf" else can.Logger(p))
+    except BaseException:
+        for writer in writers:
+            writer.stop()
+        raise
+    return writers
+
+
+def _write_batch(writers: list, batch: bytes, channel: int) -> int:
+    """Write one batch of packed frames with every writer; returns the frames a writer failed on."""
+    errors, offset, size = 0, 0, _FRAME.size
+    while offset < len(batch):
+        timestamp, can_id, flags, dlc, length = _FRAME.unpack_from(batch, offset)
+        offset += size
+        data = batch[offset:offset + length]
+        offset += length
+        # All frames go to one log channel: python-can writers derive a number from the bus's channel
+        # name (e.g. digits of a virtual channel), which need not fit the format.
+        msg = can.Message(timestamp=timestamp, arbitration_id=can_id, data=data, dlc=dlc, channel=channel,
+                          check=False, **{name: bool(flags >> bit & 1) for bit, name in enumerate(_FLAGS)})
+        try:
+            for writer in writers:
+                writer.on_message_received(msg)
+        except Exception:                          # noqa: BLE001 - counted, reported to the master on stop
+            errors += 1
+            if errors == 1:
+                logger.exception("bus recorder: cannot write a frame")
+    return errors
+
+
+def _serve(conn: Connection) -> None:
+    """The writer process: open the files, write the batches in order, close them on stop or EOF."""
+    paths, channel = pickle.loads(conn.recv_bytes())
+    try:
+        writers = _open_writers(paths)
+    except BaseException as exc:                   # noqa: BLE001 - raised by the master's constructor
+        conn.send_bytes(_ERROR + pickle.dumps(exc))
+        return
+    conn.send_bytes(_OK)
+    errors = 0
+    try:
+        while True:
+            try:
+                batch = conn.recv_bytes()
+            except EOFError:                       # the master is gone: keep what was handed over
+                return
+            if batch == _STOP:
+                break
+            errors += _write_batch(writers, batch, channel)
+    finally:
+        for writer in writers:
+            writer.stop()
+    conn.send_bytes(_OK + errors.to_bytes(8, "little"))
 
 
 def replay(path: str | Path, bus: can.BusABC, *, realtime: bool = True, skip: float = 60.0,
@@ -133,3 +273,7 @@ def sent_by_master(msg) -> bool:
     RPDOs and SDO requests (11-bit identifiers only)."""
     cob = msg.arbitration_id
     return not msg.is_extended_id and (cob == 0x80 or (cob >> 7) in _MASTER_FUNCTIONS)
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1])))
