@@ -12,7 +12,7 @@ The writers run in a process of their own (``python -m qomni.hil.tools.recorder 
 interpreter fed over a socket pair): python-can's writers format and pack every frame in Python, about
 7 µs per frame for a BLF and a candump file together, which is 15 frames and a fifth of a lock-step
 campaign's cycle. The master's thread only packs each frame into a batch (timestamp, identifier,
-flags, DLC, data; :data:`_FRAME`) and hands the batch over every :data:`BATCH_FRAMES` frames or
+flags, DLC, data) and hands the batch over, pickled, every :data:`BATCH_FRAMES` frames or
 :data:`BATCH_AGE` seconds, whichever comes first; :meth:`BusRecorder.stop` hands over the rest and waits
 until every file is flushed and closed. The files are what the same writers make in the master's
 process: the frames' fields cross the socket unchanged.
@@ -26,7 +26,6 @@ import logging
 import os
 import pickle
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -40,8 +39,7 @@ import can
 logger = logging.getLogger(__name__)
 
 
-#: A frame in a batch: timestamp [s], arbitration ID, flags (_FLAGS bits), DLC, data length; then the data.
-_FRAME = struct.Struct("<dIBBB")
+#: A frame in a batch: (timestamp [s], arbitration ID, flags (bit i: _FLAGS[i]), DLC, data bytes).
 _FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_rx", "is_fd", "bitrate_switch",
           "error_state_indicator")
 #: Frames per batch handed to the writer process, and the age [s] after which a batch goes anyway.
@@ -49,7 +47,7 @@ BATCH_FRAMES = 512
 BATCH_AGE = 0.1
 #: s the writer process gets to open its files, and to write and close them on stop.
 WRITER_TIMEOUT = 60.0
-_OK, _ERROR, _STOP = b"K", b"E", b"S"
+_OK, _ERROR, _STOP, _FRAMES = b"K", b"E", b"S", b"F"
 
 
 class BusRecorder(can.Listener):
@@ -76,8 +74,7 @@ class BusRecorder(can.Listener):
         self.path = self.paths[0]
         self.channel = channel
         self._lock = threading.Lock()
-        self._batch = bytearray()
-        self._batch_frames = 0
+        self._batch: list[tuple] = []
         self._batch_since = 0.0
         self.frames = 0
         self.errors = 0
@@ -103,21 +100,19 @@ class BusRecorder(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         """Record a received frame (called by the notifier thread). Never raises: a recorder whose
         writer process is gone counts the frames it cannot hand over in ``errors`` and logs once."""
-        data = bytes(msg.data or b"")
-        flags = 0
-        for bit, name in enumerate(_FLAGS):
-            if getattr(msg, name):
-                flags |= 1 << bit
+        frame = (msg.timestamp, msg.arbitration_id,
+                 msg.is_extended_id | msg.is_remote_frame << 1 | msg.is_error_frame << 2 | msg.is_rx << 3
+                 | msg.is_fd << 4 | msg.bitrate_switch << 5 | msg.error_state_indicator << 6,
+                 msg.dlc, bytes(msg.data or b""))
         with self._lock:
             if not self._open:
                 return
-            if not self._batch_frames:
-                self._batch_since = time.monotonic()
-            self._batch += _FRAME.pack(msg.timestamp, msg.arbitration_id, flags, msg.dlc, len(data))
-            self._batch += data
-            self._batch_frames += 1
+            batch = self._batch
+            batch.append(frame)
             self.frames += 1
-            if self._batch_frames >= BATCH_FRAMES or time.monotonic() - self._batch_since > BATCH_AGE:
+            if len(batch) == 1:
+                self._batch_since = time.monotonic()
+            elif len(batch) >= BATCH_FRAMES or time.monotonic() - self._batch_since > BATCH_AGE:
                 self._hand_over()
 
     def on_transmit(self, msg: can.Message) -> None:
@@ -146,17 +141,18 @@ class BusRecorder(can.Listener):
 
     # -- internals ------------------------------------------------------------------------------
     def _hand_over(self) -> None:
-        if not self._batch_frames:
+        batch = self._batch
+        if not batch:
             return
+        self._batch = []
         try:
-            self._conn.send_bytes(self._batch)
+            self._conn.send_bytes(_FRAMES + pickle.dumps(batch, protocol=pickle.HIGHEST_PROTOCOL))
         except (OSError, ValueError):
-            self.errors += self._batch_frames
-            if self.errors == self._batch_frames:
+            first = not self.errors
+            self.errors += len(batch)
+            if first:
                 logger.error("bus recorder %s: the writer process is gone (exit code %s)", self.path,
                              self._process.poll())
-        self._batch = bytearray()
-        self._batch_frames = 0
 
     def _answer(self) -> bytes:
         if not self._conn.poll(WRITER_TIMEOUT):
@@ -186,14 +182,10 @@ def _open_writers(paths: list[str]) -> list:
     return writers
 
 
-def _write_batch(writers: list, batch: bytes, channel: int) -> int:
-    """Write one batch of packed frames with every writer; returns the frames a writer failed on."""
-    errors, offset, size = 0, 0, _FRAME.size
-    while offset < len(batch):
-        timestamp, can_id, flags, dlc, length = _FRAME.unpack_from(batch, offset)
-        offset += size
-        data = batch[offset:offset + length]
-        offset += length
+def _write_batch(writers: list, batch: list[tuple], channel: int) -> int:
+    """Write one batch of frames with every writer; returns the frames a writer failed on."""
+    errors = 0
+    for timestamp, can_id, flags, dlc, data in batch:
         # All frames go to one log channel: python-can writers derive a number from the bus's channel
         # name (e.g. digits of a virtual channel), which need not fit the format.
         msg = can.Message(timestamp=timestamp, arbitration_id=can_id, data=data, dlc=dlc, channel=channel,
@@ -226,7 +218,7 @@ def _serve(conn: Connection) -> None:
                 return
             if batch == _STOP:
                 break
-            errors += _write_batch(writers, batch, channel)
+            errors += _write_batch(writers, pickle.loads(batch[1:]), channel)
     finally:
         for writer in writers:
             writer.stop()
