@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))                 # this checkout's qomni, not an in
 
 from qomni.datasheet import DataSheet  # noqa: E402
 from qomni.ident.campaign import CampaignSettings, plan  # noqa: E402
-from qomni.ident.fourier import FourierTrajectory, _basis  # noqa: E402
+from qomni.ident.fourier import FourierTrajectory, _basis, _richness_cond  # noqa: E402
 from qomni.ident.regressor_rows import VELOCITY_THRESHOLD  # noqa: E402
 
 
@@ -36,10 +36,7 @@ def pair_condition(qd: np.ndarray, qdd: np.ndarray, threshold: float) -> tuple[f
     keep = np.abs(qd) >= threshold
     if keep.sum() < 3:
         return math.inf, float(keep.mean())
-    r = np.column_stack([qdd[keep], qd[keep], np.sign(qd[keep])])
-    r = r / np.linalg.norm(r, axis=0)
-    s = np.linalg.svd(r, compute_uv=False)
-    return float((s[0] / s[-1]) ** 2) if s[-1] > 0 else math.inf, float(keep.mean())
+    return _richness_cond(qd[keep], qdd[keep]) ** 2, float(keep.mean())
 
 
 def best_period(n_h: int, period: float, limits: CampaignSettings, threshold: float, lost_weight: float,

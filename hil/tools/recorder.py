@@ -11,8 +11,8 @@ through :class:`can.Logger`.
 The writers run in a process of their own (``python -m qomni.hil.tools.recorder FD``, a fresh
 interpreter fed over a socket pair): python-can's writers format and pack every frame in Python, about
 7 µs per frame for a BLF and a candump file together, which is 15 frames and a fifth of a lock-step
-campaign's cycle. The master's thread only packs each frame into a batch (timestamp, identifier,
-flags, DLC, data) and hands the batch over, pickled, every :data:`BATCH_FRAMES` frames or
+campaign's cycle. The master's thread only appends each frame's fields to a batch (timestamp,
+identifier, DLC, data, flags) and hands the batch over, pickled, every :data:`BATCH_FRAMES` frames or
 :data:`BATCH_AGE` seconds, whichever comes first; :meth:`BusRecorder.stop` hands over the rest and waits
 until every file is flushed and closed. The files are what the same writers make in the master's
 process: the frames' fields cross the socket unchanged.
@@ -39,7 +39,7 @@ import can
 logger = logging.getLogger(__name__)
 
 
-#: A frame in a batch: (timestamp [s], arbitration ID, flags (bit i: _FLAGS[i]), DLC, data bytes).
+#: A frame in a batch: (timestamp [s], arbitration ID, DLC, data bytes, the can.Message flags below).
 _FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_rx", "is_fd", "bitrate_switch",
           "error_state_indicator")
 #: Frames per batch handed to the writer process, and the age [s] after which a batch goes anyway.
@@ -100,10 +100,9 @@ class BusRecorder(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         """Record a received frame (called by the notifier thread). Never raises: a recorder whose
         writer process is gone counts the frames it cannot hand over in ``errors`` and logs once."""
-        frame = (msg.timestamp, msg.arbitration_id,
-                 msg.is_extended_id | msg.is_remote_frame << 1 | msg.is_error_frame << 2 | msg.is_rx << 3
-                 | msg.is_fd << 4 | msg.bitrate_switch << 5 | msg.error_state_indicator << 6,
-                 msg.dlc, bytes(msg.data or b""))
+        frame = (msg.timestamp, msg.arbitration_id, msg.dlc, bytes(msg.data or b""),
+                 (msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame, msg.is_rx, msg.is_fd,
+                  msg.bitrate_switch, msg.error_state_indicator))                  # in _FLAGS order
         with self._lock:
             if not self._open:
                 return
@@ -185,11 +184,11 @@ def _open_writers(paths: list[str]) -> list:
 def _write_batch(writers: list, batch: list[tuple], channel: int) -> int:
     """Write one batch of frames with every writer; returns the frames a writer failed on."""
     errors = 0
-    for timestamp, can_id, flags, dlc, data in batch:
+    for timestamp, can_id, dlc, data, flags in batch:
         # All frames go to one log channel: python-can writers derive a number from the bus's channel
         # name (e.g. digits of a virtual channel), which need not fit the format.
         msg = can.Message(timestamp=timestamp, arbitration_id=can_id, data=data, dlc=dlc, channel=channel,
-                          check=False, **{name: bool(flags >> bit & 1) for bit, name in enumerate(_FLAGS)})
+                          check=False, **dict(zip(_FLAGS, flags)))
         try:
             for writer in writers:
                 writer.on_message_received(msg)
