@@ -20,9 +20,12 @@ def _lifted(faulty: dict[str, float] | None = None) -> dict:
                 "d_vw": (0.73, 0.002), "d_cw": (3.95, 0.014)} for w in WHEELS}
 
 
-def _candidate(wheel: str, factor_minus_one: float, significant: bool = True):
+def _candidate(wheel: str, factor_minus_one: float, significant: bool = True, sigma: float = 0.019):
+    """A torque-constant candidate fitted at ``factor_minus_one`` ± ``sigma`` (its 95 % interval)."""
+    half = 1.959964 * sigma
     return NS(hypothesis=NS(name="torque_constant_error", variant=f"drive {wheel}"),
-              magnitude=NS(value=factor_minus_one), significant=significant, notes=[])
+              magnitude=NS(value=factor_minus_one, ci=(factor_minus_one - half, factor_minus_one + half)),
+              significant=significant, notes=[])
 
 
 def _rows(lifted):
@@ -44,16 +47,38 @@ def test_the_lifted_run_names_the_stronger_drive_where_the_wheels_data_name_a_we
     others = [_candidate("fr", 0.01, False), _candidate("rr", -0.01, False)]
     resolve_drive([named, equivalent, *others], _rows(_lifted({"rl": 1.13})))
     assert equivalent.significant and not named.significant
+    assert "wheel rl" in equivalent.notes[0] and "drive fl's factor" in named.notes[0]
+
+
+def test_where_the_lifted_run_cannot_contradict_the_weaker_drive_it_still_names_the_one_it_singles_out():
+    # the fit too uncertain for the lifted run to rule out drive fl by its factor alone
+    named, equivalent = _candidate("fl", -0.108, sigma=0.05), _candidate("rl", 0.109)
+    resolve_drive([named, equivalent], _rows(_lifted({"rl": 1.13})))
+    assert equivalent.significant and not named.significant
     assert "wheel rl" in equivalent.notes[0] and "drive rl" in named.notes[0]
 
 
-@pytest.mark.parametrize("lifted,why", [
-    (None, "no single-axis run"),
-    (_lifted(), "no wheel off"),
-    (_lifted({"rl": 1.13, "fr": 0.9}), "two wheels off: the lifted run singles out none"),
-    (_lifted({"rl": 0.88}), "the wheel says weaker, the candidate stronger"),
+@pytest.mark.parametrize("lifted,candidates,why", [
+    (None, {"fl": -0.108, "rl": 0.109}, "no single-axis run"),
+    (_lifted({"rl": 1.13, "fr": 0.9}), {"rl": 0.118, "fr": -0.095},
+     "two wheels off, each as its candidate says: the lifted run singles out none and contradicts neither"),
+    (_lifted({"rl": 1.13}), {"rl": 0.112}, "the faulty drive fitted within its σ of the lifted value"),
+    (_lifted(), {"fr": 0.012}, "a small factor within the lifted run's σ of none"),
 ])
-def test_the_lifted_run_changes_nothing_where_it_does_not_single_out_the_candidates_drive(lifted, why):
-    named, equivalent = _candidate("fl", -0.108), _candidate("rl", 0.109)
-    resolve_drive([named, equivalent], _rows(lifted))
-    assert named.significant and equivalent.significant, why
+def test_the_lifted_run_keeps_candidates_it_agrees_with(lifted, candidates, why):
+    cands = [_candidate(w, v) for w, v in candidates.items()]
+    resolve_drive(cands, _rows(lifted))
+    assert all(c.significant for c in cands), why
+
+
+@pytest.mark.parametrize("lifted,wheel,value,why", [
+    (_lifted(), "rl", -0.81, "a scrub fitted as a drive at factor 0.19 while its lifted wheel reads as the others"),
+    (_lifted(), "fl", -0.108, "no wheel off: no drive 11 % weak"),
+    (_lifted({"rl": 0.88}), "rl", 0.109, "the wheel says weaker, the candidate stronger"),
+    (_lifted({"rl": 1.13}), "rl", 0.30, "the right drive, three times the lifted run's factor"),
+])
+def test_a_factor_the_lifted_run_contradicts_is_not_named(lifted, wheel, value, why):
+    c = _candidate(wheel, value)
+    resolve_drive([c], _rows(lifted))
+    assert not c.significant, why
+    assert f"drive {wheel}'s factor" in c.notes[0] and "contradicts" in c.notes[0]

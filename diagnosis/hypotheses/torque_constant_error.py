@@ -55,17 +55,52 @@ def lifted_inertia_ratio(wheels: dict, wheel: str) -> tuple[float, float]:
     return ratio, ratio * math.hypot(std / value, median_std / median)
 
 
+def lifted_factor(wheels: dict, wheel: str) -> tuple[float, float]:
+    """The torque-constant factor − 1 of ``wheel``'s drive as the lifted run measures it, relative to the
+    other drives (1/ratio − 1 of :func:`lifted_inertia_ratio`), and its σ (first order)."""
+    ratio, std = lifted_inertia_ratio(wheels, wheel)
+    return 1.0 / ratio - 1.0, std / ratio**2
+
+
+def _lifted_contradicts(c, wheels: dict, wheel: str) -> str | None:
+    """Why the lifted run rules out candidate ``c`` (drive ``wheel``'s variant), or None: its fitted
+    factor − 1 and the lifted run's measure of it differ by |z| ≥ LIFTED_Z (σ of the fit from its 95 %
+    interval, of the lifted value from the two wheels' B_w)."""
+    theta = c.magnitude.value
+    lo, hi = c.magnitude.ci
+    sigma_fit = (hi - lo) / (2 * 1.959964)
+    lifted, sigma_lifted = lifted_factor(wheels, wheel)
+    z = (theta - lifted) / math.hypot(sigma_fit, sigma_lifted)
+    if abs(z) < LIFTED_Z:
+        return None
+    return (f"the lifted run measures drive {wheel}'s factor − 1 at {lifted:+.3f} ± {sigma_lifted:.3f} (its "
+            f"wheel's B_w against the others'); the fitted {theta:+.3f} contradicts it (z = {z:.1f})")
+
+
 def resolve_drive(candidates: list, rows: RuleRows) -> None:
-    """The torque-constant variants' rule (``Hypothesis.resolve``): where the lifted run singles out one
-    wheel (|z| of its B_w ratio ≥ LIFTED_Z, the other three below) and that drive's variant is
-    significant with the sign the ratio implies (ratio < 1: a stronger drive, factor − 1 > 0), the
-    other drives' variants are not named: the data on the wheels cannot rank them, the lifted run can.
-    Without a lifted run, or where it shows no wheel or several off, nothing changes."""
+    """The torque-constant variants' rule (``Hypothesis.resolve``), where the campaign has a lifted run:
+
+    * a variant whose fitted factor the lifted run contradicts (:func:`_lifted_contradicts`) is not
+      significant: lifted, each wheel is driven through its own drive alone, and a factor f reads as a
+      B_w ratio 1/f there whatever the ground does (a steering compliance's scrub, fitted as drive rl at
+      factor 0.19 while the lifted wheel rl read 1.00 of the others);
+    * where the lifted run singles out one wheel (|z| of its B_w ratio ≥ LIFTED_Z, the other three below)
+      and that drive's variant is significant with the sign the ratio implies (ratio < 1: a stronger drive,
+      factor − 1 > 0), the other drives' variants are not named: the data on the wheels cannot rank them,
+      the lifted run can.
+
+    Without a lifted run nothing changes."""
     if not rows.lifted_wheels:
         return
     variants = {_variant(w): w for w in WHEELS}
     tce = {variants[c.hypothesis.variant]: c for c in candidates
            if c.hypothesis.name == "torque_constant_error" and c.hypothesis.variant in variants}
+    for w, c in tce.items():
+        why = _lifted_contradicts(c, rows.lifted_wheels, w) if c.significant and w in rows.lifted_wheels \
+            else None
+        if why is not None:
+            c.significant = False
+            c.notes.append(why)
     if not any(c.significant for c in tce.values()):
         return
     z = {}
