@@ -230,6 +230,48 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     return sub, fit
 
 
+def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses, floor):
+    """The backward step of stepwise selection: each accepted effect re-tested as if it came last, with
+    the other accepted effects in the model (beyond its reference level, as in the first round), by the
+    gate a last further effect passes in forward selection (p below ALPHA shared over the hypotheses left
+    in that round, present, physical, :func:`_confirms_further`). An effect that no longer passes it is
+    redundant: what it explained when it was accepted, later effects explain. The one with the largest p
+    goes first, then the rest are re-tested.
+
+    Forward selection alone keeps the first effect whatever comes after it: a steering compliance's scrub
+    was named as rolling resistance (removing 322 against the compliance's 297), then the compliance came
+    as a second effect and the rolling resistance stayed. Returns the kept (accepted, accepted_fits)."""
+    accepted, accepted_fits = list(accepted), list(accepted_fits)
+    while len(accepted) > 1:
+        alpha = fitting.alpha_more(len(hypotheses) - (len(accepted) - 1))
+        worst, worst_p = None, -1.0
+        for i, c in enumerate(accepted):
+            others = accepted_fits[:i] + accepted_fits[i + 1:]
+            h = c.hypothesis
+            base = fitting.solve(fp, model, combine(others), None, lag, cache)
+            head = sum(len(f.hypothesis.parameters) for f in others)
+            own = levels.get(h.label)
+            reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
+                                              for nl, theta0 in own.items()}
+            cand = fitting.fit_hypothesis(fp, hp, model, combine(others, h), base, lag, sheet, cache, reference,
+                                          hold_tail=len(h.parameters))
+            if cand is not None and cand.p_value < alpha and cand.physical and fitting.present(cand) \
+                    and _confirms_further(cand.evaluation, floor):
+                continue
+            p_value = 1.0 if cand is None else float(cand.p_value)
+            if p_value > worst_p:
+                worst, worst_p = i, p_value
+        if worst is None:
+            break
+        dropped = accepted.pop(worst)
+        accepted_fits.pop(worst)
+        later = ", ".join(c.hypothesis.label for c in accepted)
+        dropped.significant = False
+        dropped.notes.append(f"withdrawn: with {later} in the model it no longer passes its test "
+                             f"(p = {worst_p:.2g}, or not confirmed on held-out data)")
+    return accepted, accepted_fits
+
+
 def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
     """Held-out RMS removed from one channel (its unit), 0 if it was not evaluated."""
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
@@ -317,6 +359,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                              joint_fit.theta_cov[-q:, -q:], joint_fit.delta_p,
                                              joint_fit.offsets, joint_fit.rss, joint_fit.n_eff,
                                              joint_fit.n_params))
+        accepted, accepted_fits = _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache,
+                                                  levels, hypotheses, floor)
     where = where_.breakdown(chans, lag)
     structured = where_.structured(where)
     unexplained = []

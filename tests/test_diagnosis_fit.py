@@ -361,3 +361,33 @@ def test_a_base_parameter_measured_on_other_data_holds_what_the_free_base_would_
     assert held.theta[0] == pytest.approx(2.5, abs=0.01)
     # no more certain than the measurement, which alone separates the two (rows' σ 1/√400 adds in quadrature)
     assert held.theta_cov[0, 0] ** 0.5 == pytest.approx(math.hypot(0.05, 1 / math.sqrt(N_ROWS)), rel=0.05)
+
+
+def test_the_backward_step_withdraws_an_effect_a_later_one_explains_and_keeps_a_true_pair():
+    # A's column is a proxy of B's (B plus an independent part): forward selection can take A first and B
+    # after it; with B in the model A explains nothing, with A in the model B still does. Two independent
+    # effects (B and C) both stay.
+    from qomni.diagnosis.diagnose import _drop_redundant
+
+    rng = np.random.default_rng(21)
+    ch = _channel("rotation/gamma_ch", rng)
+    ch.b, ch.c = rng.normal(size=N_ROWS), rng.normal(size=N_ROWS)
+    ch.a = ch.b + 0.7 * rng.normal(size=N_ROWS)
+    noise = rng.normal(size=N_ROWS)
+    hyp = {n: Hypothesis(n, "", ("k",), (lambda name: lambda c, _: getattr(c, name)[:, None])(n),
+                         magnitude=lambda t, cov, nl, sheet: None) for n in "abc"}
+
+    def backward(residual, names):
+        ch.residual = residual
+        fit_p, hold_p = _alternating_windows([ch])
+        accepted = [NS(hypothesis=hyp[n], notes=[], significant=True) for n in names]
+        fits = [NS(hypothesis=hyp[n], nonlinear=None) for n in names]
+        kept, kept_fits = _drop_redundant(fit_p, hold_p, MODEL, 1, None, fits, accepted, {}, {},
+                                          list(hyp.values()), {})
+        assert [c.hypothesis.name for c in kept] == [f.hypothesis.name for f in kept_fits]
+        return [c.hypothesis.name for c in kept], accepted
+
+    kept, accepted = backward(2.0 * ch.b + noise, "ab")
+    assert kept == ["b"]
+    assert not accepted[0].significant and "withdrawn" in accepted[0].notes[-1]
+    assert backward(2.0 * ch.b + 1.5 * ch.c + noise, "bc")[0] == ["b", "c"]
