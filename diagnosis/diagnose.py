@@ -193,25 +193,18 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     so (the Stribeck rule's promotion rests on the first round's test, not on a further effect's)."""
     base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache)
     taken = {c.hypothesis.name for c in accepted}
-    head = sum(len(f.hypothesis.parameters) for f in accepted_fits)
     found = []
     remaining = [h for h in hypotheses if h.name not in taken]
     alpha = fitting.alpha_more(len(remaining))
     for h in remaining:
-        joint = combine(accepted_fits, h)
-        own = levels.get(h.label)
-        reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
-                                          for nl, theta0 in own.items()}
-        cand = fitting.fit_hypothesis(fp, hp, model, joint, base, lag, sheet, cache, reference,
-                                      hold_tail=len(h.parameters))
+        cand = _fit_last(fp, hp, model, lag, sheet, accepted_fits, h, base, cache, levels)
         if cand is None:
             continue
         q = len(h.parameters)
         theta = cand.fit.theta[-q:]
         cov = cand.fit.theta_cov[-q:, -q:]
         physical = cand.physical  # the joint hypothesis checks the added effect's part
-        significant = cand.p_value < alpha and fitting.present(cand) and physical \
-            and _confirms_further(cand.evaluation, floor)
+        significant = _passes_further(cand, alpha, floor)
         sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
                                 cand.p_value, cand.evaluation, {}, physical, significant,
                                 ["accepted in forward selection with "
@@ -228,6 +221,23 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     sub, fit = max(passed, key=lambda f: f[0].evaluation.removed)
     sub.identifiability = fitting.collinearity(fp, sub.hypothesis, fit.nonlinear, cache)
     return sub, fit
+
+
+def _fit_last(fp, hp, model, lag, sheet, fits: list[Fit], h: Hypothesis, base: Fit, cache, levels):
+    """``h`` fitted with the effects of ``fits`` in the model (free, in ``base``), beyond its level in the
+    reference run (``levels``), its own coefficients the tested tail; None where it has no columns."""
+    head = sum(len(f.hypothesis.parameters) for f in fits)
+    own = levels.get(h.label)
+    reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0]) for nl, theta0 in own.items()}
+    return fitting.fit_hypothesis(fp, hp, model, combine(fits, h), base, lag, sheet, cache, reference,
+                                  hold_tail=len(h.parameters))
+
+
+def _passes_further(cand: fitting.Candidate, alpha: float, floor: dict | None) -> bool:
+    """A further effect's gate: p < ``alpha``, present, physical (the added effect's part), confirmed on
+    held-out data (:func:`_confirms_further`)."""
+    return cand.p_value < alpha and fitting.present(cand) and cand.physical \
+        and _confirms_further(cand.evaluation, floor)
 
 
 def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses, floor):
@@ -247,16 +257,9 @@ def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, l
         worst, worst_p = None, -1.0
         for i, c in enumerate(accepted):
             others = accepted_fits[:i] + accepted_fits[i + 1:]
-            h = c.hypothesis
             base = fitting.solve(fp, model, combine(others), None, lag, cache)
-            head = sum(len(f.hypothesis.parameters) for f in others)
-            own = levels.get(h.label)
-            reference = None if not own else {nl: np.concatenate([np.zeros(head), theta0])
-                                              for nl, theta0 in own.items()}
-            cand = fitting.fit_hypothesis(fp, hp, model, combine(others, h), base, lag, sheet, cache, reference,
-                                          hold_tail=len(h.parameters))
-            if cand is not None and cand.p_value < alpha and cand.physical and fitting.present(cand) \
-                    and _confirms_further(cand.evaluation, floor):
+            cand = _fit_last(fp, hp, model, lag, sheet, others, c.hypothesis, base, cache, levels)
+            if cand is not None and _passes_further(cand, alpha, floor):
                 continue
             p_value = 1.0 if cand is None else float(cand.p_value)
             if p_value > worst_p:

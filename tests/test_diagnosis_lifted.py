@@ -2,6 +2,7 @@
 torque-constant error is on, where the wheels' own data cannot rank a weaker and a stronger drive."""
 from types import SimpleNamespace as NS
 
+import numpy as np
 import pytest
 
 from qomni.diagnosis.hypotheses.base import RuleRows
@@ -21,10 +22,10 @@ def _lifted(faulty: dict[str, float] | None = None) -> dict:
 
 
 def _candidate(wheel: str, factor_minus_one: float, significant: bool = True, sigma: float = 0.019):
-    """A torque-constant candidate fitted at ``factor_minus_one`` ± ``sigma`` (its 95 % interval)."""
-    half = 1.959964 * sigma
+    """A torque-constant candidate fitted at ``factor_minus_one`` with standard deviation ``sigma``."""
     return NS(hypothesis=NS(name="torque_constant_error", variant=f"drive {wheel}"),
-              magnitude=NS(value=factor_minus_one, ci=(factor_minus_one - half, factor_minus_one + half)),
+              magnitude=NS(value=factor_minus_one),
+              fit=NS(theta=np.array([factor_minus_one]), theta_cov=np.array([[sigma**2]])),
               significant=significant, notes=[])
 
 

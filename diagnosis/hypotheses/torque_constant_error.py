@@ -64,11 +64,11 @@ def lifted_factor(wheels: dict, wheel: str) -> tuple[float, float]:
 
 def _lifted_contradicts(c, wheels: dict, wheel: str) -> str | None:
     """Why the lifted run rules out candidate ``c`` (drive ``wheel``'s variant), or None: its fitted
-    factor − 1 and the lifted run's measure of it differ by |z| ≥ LIFTED_Z (σ of the fit from its 95 %
-    interval, of the lifted value from the two wheels' B_w)."""
-    theta = c.magnitude.value
-    lo, hi = c.magnitude.ci
-    sigma_fit = (hi - lo) / (2 * 1.959964)
+    factor − 1 and the lifted run's measure of it differ by |z| ≥ LIFTED_Z (σ of the fit from its
+    covariance, of the lifted value from the two wheels' B_w). The variant's coefficient is its fit's last
+    (alone, or after the accepted effects in forward selection)."""
+    theta = float(c.fit.theta[-1])
+    sigma_fit = math.sqrt(float(c.fit.theta_cov[-1, -1]))
     lifted, sigma_lifted = lifted_factor(wheels, wheel)
     z = (theta - lifted) / math.hypot(sigma_fit, sigma_lifted)
     if abs(z) < LIFTED_Z:
