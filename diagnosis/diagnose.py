@@ -163,12 +163,18 @@ def measured_base(model: IdentificationResult, lifted: dict | None) -> MeasuredB
     return MeasuredBase(index, delta, std)
 
 
-def _own_floor(ref_problem) -> dict:
-    """Channel → RMS of the model's residual on its own run (fitted rows), the channel's unit."""
+def _own_floor(ref_problem, model: IdentificationResult, lag: int, cache: dict) -> dict:
+    """Channel → RMS of the residual the model leaves on its own run (the reference, all rows, nuisance
+    terms projected out), the channel's unit, with the base parameters re-identified there: the twin's
+    truth is p̂, and identified on the twin p̂ comes back with the identification's bias again (C_r +8 %,
+    docs/diagnosis.md), so p̂ itself leaves the twin a larger residual than the data's own identification
+    leaves the data. Re-identified, the floor is the least-squares residual on both sides. Where the model
+    is the reference run's own identification the re-identification is the model itself."""
     if ref_problem is None:
         return {}
-    return {ch.name: float(np.sqrt(np.mean(ch.residual[rows] ** 2)))
-            for ch, rows in zip(ref_problem.channels, ref_problem.fit_rows) if rows.any()}
+    base = fitting.solve(ref_problem, model, None, None, lag, cache)
+    return {ch.name: float(np.sqrt(np.mean(evaluation.predicted_residual(ref_problem, i, base, rows, cache) ** 2)))
+            for i, (ch, rows) in enumerate(zip(ref_problem.channels, ref_problem.fit_rows)) if rows.any()}
 
 
 def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
@@ -252,27 +258,63 @@ def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, l
     was named as rolling resistance (removing 322 against the compliance's 297), then the compliance came
     as a second effect and the rolling resistance stayed. Returns the kept (accepted, accepted_fits)."""
     accepted, accepted_fits = list(accepted), list(accepted_fits)
+    withdrawn = False
+    refits: dict = {}                     # index → fit as last, from a round that withdrew nothing
     while len(accepted) > 1:
         alpha = fitting.alpha_more(len(hypotheses) - (len(accepted) - 1))
         worst, worst_p = None, -1.0
+        refits = {}
         for i, c in enumerate(accepted):
             others = accepted_fits[:i] + accepted_fits[i + 1:]
             base = fitting.solve(fp, model, combine(others), None, lag, cache)
             cand = _fit_last(fp, hp, model, lag, sheet, others, c.hypothesis, base, cache, levels)
             if cand is not None and _passes_further(cand, alpha, floor):
+                refits[i] = cand
                 continue
             p_value = 1.0 if cand is None else float(cand.p_value)
             if p_value > worst_p:
                 worst, worst_p = i, p_value
         if worst is None:
             break
+        withdrawn, refits = True, {}
         dropped = accepted.pop(worst)
         accepted_fits.pop(worst)
         later = ", ".join(c.hypothesis.label for c in accepted)
         dropped.significant = False
         dropped.notes.append(f"withdrawn: with {later} in the model it no longer passes its test "
                              f"(p = {worst_p:.2g}, or not confirmed on held-out data)")
+    if withdrawn:
+        _refit_kept(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, refits)
     return accepted, accepted_fits
+
+
+def _refit_kept(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, refits: dict) -> None:
+    """After a withdrawal, each kept effect's magnitude and fit (in place) as fitted last with the other
+    kept effects in the model, not as forward selection fitted it beside the withdrawn one (which took
+    part of what the kept effect explains). ``refits``: index → that fit where the backward step's last
+    round already made it."""
+    for i, c in enumerate(accepted):
+        cand = refits.get(i)
+        if cand is None:
+            others = accepted_fits[:i] + accepted_fits[i + 1:]
+            base = fitting.solve(fp, model, combine(others) if others else None, None, lag, cache)
+            cand = _fit_last(fp, hp, model, lag, sheet, others, c.hypothesis, base, cache, levels)
+        if cand is None:
+            continue
+        h = c.hypothesis
+        accepted_fits[i] = _tail_fit(h, cand.fit)
+        q = len(h.parameters)
+        c.magnitude = h.magnitude(cand.fit.theta[-q:], cand.fit.theta_cov[-q:, -q:], cand.fit.nonlinear, sheet)
+        c.notes.append("magnitude refitted with the kept effects only"
+                       + (f" ({', '.join(o.hypothesis.label for o in accepted if o is not c)})"
+                          if len(accepted) > 1 else ""))
+
+
+def _tail_fit(h: Hypothesis, joint_fit: Fit) -> Fit:
+    """The fit of ``h``, the last of a joint fit's hypotheses: its coefficients are the joint θ's tail."""
+    q = len(h.parameters)
+    return Fit(h, joint_fit.nonlinear, joint_fit.theta[-q:], joint_fit.theta_cov[-q:, -q:], joint_fit.delta_p,
+               joint_fit.offsets, joint_fit.rss, joint_fit.n_eff, joint_fit.n_params)
 
 
 def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
@@ -349,7 +391,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if first is not None:
         accepted.append(first)
         accepted_fits.append(first.fit)
-        floor = _own_floor(ref_problem)
+        floor = _own_floor(ref_problem, model, lag, cache)
         while len(accepted) < MAX_EFFECTS:
             more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
                                 floor, rows)
@@ -357,11 +399,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                 break
             cand, joint_fit = more
             accepted.append(cand)
-            q = len(cand.hypothesis.parameters)
-            accepted_fits.append(Fit(cand.hypothesis, joint_fit.nonlinear, joint_fit.theta[-q:],
-                                             joint_fit.theta_cov[-q:, -q:], joint_fit.delta_p,
-                                             joint_fit.offsets, joint_fit.rss, joint_fit.n_eff,
-                                             joint_fit.n_params))
+            accepted_fits.append(_tail_fit(cand.hypothesis, joint_fit))
         accepted, accepted_fits = _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache,
                                                   levels, hypotheses, floor)
     where = where_.breakdown(chans, lag)

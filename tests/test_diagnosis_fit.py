@@ -258,6 +258,23 @@ def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_agains
     assert not _confirms_further(evaluation(21.28, 19.69, removed=-1.0), floor)
 
 
+def test_the_models_own_floor_is_what_it_leaves_on_the_reference_re_identified_there():
+    # The twin's truth is p̂; identified on the twin, a parameter comes back biased again, so p̂ leaves the
+    # twin a residual along that parameter's column. The floor is the residual of the base re-identified
+    # on the reference (the data's own identification leaves the data its least-squares residual), not p̂'s.
+    from qomni.diagnosis.diagnose import _own_floor
+
+    rng = np.random.default_rng(23)
+    ch = _channel("steer_right/alpha_r", rng)
+    ch.residual = 3.0 * ch.base[:, 1] + rng.normal(size=N_ROWS)     # p̂ off the twin's optimum, noise σ = 1
+    problem = _problem([ch])
+    problem.base_prior = False                                      # the model comes from the data
+    floor = _own_floor(problem, MODEL, 1, {})["steer_right/alpha_r"]
+    assert float(np.sqrt(np.mean(ch.residual ** 2))) > 2.5          # at p̂
+    assert floor == pytest.approx(1.0, abs=0.1)                     # at the re-identified base
+    assert _own_floor(None, MODEL, 1, {}) == {}
+
+
 def test_an_incline_counts_by_its_slope_whichever_way_it_falls():
     """Relevance bounds the slope √(sin_x² + sin_y²), not the first coefficient: 0.5 mrad is within a floor's
     flatness tolerance, 2 mrad downhill along world y is an incline."""
@@ -375,19 +392,24 @@ def test_the_backward_step_withdraws_an_effect_a_later_one_explains_and_keeps_a_
     ch.a = ch.b + 0.7 * rng.normal(size=N_ROWS)
     noise = rng.normal(size=N_ROWS)
     hyp = {n: Hypothesis(n, "", ("k",), (lambda name: lambda c, _: getattr(c, name)[:, None])(n),
-                         magnitude=lambda t, cov, nl, sheet: None) for n in "abc"}
+                         magnitude=lambda t, cov, nl, sheet: float(t[0])) for n in "abc"}
 
     def backward(residual, names):
         ch.residual = residual
         fit_p, hold_p = _alternating_windows([ch])
-        accepted = [NS(hypothesis=hyp[n], notes=[], significant=True) for n in names]
-        fits = [NS(hypothesis=hyp[n], nonlinear=None) for n in names]
+        # as forward selection left them: B's level only what A did not take
+        accepted = [NS(hypothesis=hyp[n], notes=[], significant=True, magnitude=0.5) for n in names]
+        fits = [NS(hypothesis=hyp[n], nonlinear=None, theta=np.array([0.5])) for n in names]
         kept, kept_fits = _drop_redundant(fit_p, hold_p, MODEL, 1, None, fits, accepted, {}, {},
                                           list(hyp.values()), {})
         assert [c.hypothesis.name for c in kept] == [f.hypothesis.name for f in kept_fits]
-        return [c.hypothesis.name for c in kept], accepted
+        return [c.hypothesis.name for c in kept], accepted, kept, kept_fits
 
-    kept, accepted = backward(2.0 * ch.b + noise, "ab")
+    kept, accepted, kept_c, kept_fits = backward(2.0 * ch.b + noise, "ab")
     assert kept == ["b"]
     assert not accepted[0].significant and "withdrawn" in accepted[0].notes[-1]
-    assert backward(2.0 * ch.b + 1.5 * ch.c + noise, "bc")[0] == ["b", "c"]
+    # the kept effect's magnitude and fit are refitted without the withdrawn one: B's whole level
+    assert kept_c[0].magnitude == pytest.approx(2.0, abs=0.1) and "refitted" in kept_c[0].notes[-1]
+    assert kept_fits[0].theta[0] == pytest.approx(2.0, abs=0.1)
+    kept, accepted, kept_c, _ = backward(2.0 * ch.b + 1.5 * ch.c + noise, "bc")
+    assert kept == ["b", "c"] and [c.magnitude for c in kept_c] == [0.5, 0.5]   # nothing withdrawn
