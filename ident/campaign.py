@@ -10,7 +10,7 @@ far stays on disk.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -19,7 +19,7 @@ import numpy as np
 from qomni.vehicle_interface import VehicleInterface
 
 from . import excitation, kinematics
-from .controller import ControllerSettings, StepController, quintic_alignment
+from .controller import ControllerSettings, StepController, quintic_alignment, step_cycles
 from .probe import DeadTimeProbe
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
@@ -30,8 +30,31 @@ IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
 
 
+#: Step name of the rows recorded while the steering loop was in a limit cycle, and of the recovery from it.
+LIMIT_CYCLE_STEP = "limit_cycle"
+#: A limit cycle: in this many seconds (a sliding window) some drive was commanded at the torque limit in at
+#: least LIMIT_CYCLE_SHARE of the cycles. A loop that tracks the campaign's trajectories stays inside its
+#: margin: on the full-campaign suite's vehicles without an actuator delay (effects over their realistic
+#: ranges, the prototype, the heavy platform) no cycle reached the limit in any step; with a 16 ms delay
+#: 73 % of the first 0.5 s rest did, and 68–98 % of every later step.
+LIMIT_CYCLE_WINDOW = 0.25
+LIMIT_CYCLE_SHARE = 0.5
+#: s of zero torque after a limit cycle is detected (the steering coasts to rest on its friction), then s
+#: of a quintic back to α = 0 at the bandwidth designed for ``max_dead_time``.
+COAST = 0.5
+RECOVER = 1.5
+
+
 class CampaignAborted(RuntimeError):
     """The campaign stopped early; the run directory keeps what was recorded until then."""
+
+
+class _LimitCycle(Exception):
+    """The steering loop is in a limit cycle at the torque limit (during ``segment``, at ``time``)."""
+
+    def __init__(self, segment: str, time: float, share: float, measurement):
+        super().__init__(segment)
+        self.segment, self.time, self.share, self.measurement = segment, time, share, measurement
 
 
 @dataclass(frozen=True)
@@ -189,40 +212,35 @@ class Campaign:
         """Execute all segments on ``vehicle`` (connected, drives enabled); returns the metadata
         written to ``metadata.json``.
 
+        A steering loop that falls into a limit cycle at the torque limit before the first identification
+        step has ended (``ControllerSettings.probe_on_limit_cycle``) is stopped and the campaign starts again
+        after the dead-time probe (then, if the probe's bandwidth cycles as well, at the bandwidth designed
+        for ``max_dead_time``): :meth:`_recover`.
+
         Raises:
-            CampaignAborted: a communication error, a steering angle near the stops, or an interrupt
-                (KeyboardInterrupt); the vehicle is stopped and the recording kept.
+            CampaignAborted: a communication error, a steering angle near the stops, a third limit cycle,
+                or an interrupt (KeyboardInterrupt); the vehicle is stopped and the recording kept.
         """
         self.vehicle = vehicle
-        ts = self.sheet.drive.cycle_time
         meta = self._metadata()
         meta["status"] = "running"
         self._write_metadata(meta)
-        done, total = 0, self.total_cycles
-        limit = self.sheet.geometry.steering_limit - 0.03
+        self._done = 0
         writer = SignalWriter(self.run_dir / SIGNALS)
         try:
             measurement = self.vehicle.exchange(np.zeros(4))
             if self.probe is not None:
                 measurement = self._probe(measurement, writer, meta)
-                done = self.probe.total_cycles
-            for seg, ctrl in zip(self.segments, self.controllers):
-                start = measurement.time
-                for j in range(ctrl.cycles):
-                    u = ctrl.command(j * ts, measurement)
-                    measurement = self.vehicle.exchange(u)
-                    writer.write(seg.name, seg.mode, measurement, u)
-                    if max(map(abs, measurement.alpha)) > limit:
-                        raise CampaignAborted(
-                            f"steering angle {np.round(measurement.alpha, 3)} rad near the stops "
-                            f"during '{seg.name}'")
-                    done += 1
-                    if self.on_progress:
-                        self.on_progress(done, total, seg.name)
-                writer.flush()
-                meta["segments"].append({"name": seg.name, "k": seg.mode, "t_start": start,
-                                         "t_end": measurement.time})
-                self._write_metadata(meta)
+                self._done = self.probe.total_cycles
+            recoveries = 0
+            while True:
+                try:
+                    measurement = self._segments_run(measurement, writer, meta,
+                                                     self.controller_settings.probe_on_limit_cycle)
+                    break
+                except _LimitCycle as cycle:
+                    recoveries += 1
+                    measurement = self._recover(cycle, writer, meta, recoveries)
             meta["status"] = "complete"
             meta["missed_samples"] = _missed(self.vehicle)
         except BaseException as exc:  # noqa: BLE001 - stop the wheels whatever happened
@@ -239,6 +257,100 @@ class Campaign:
         meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S")
         self._write_metadata(meta)
         return meta
+
+    def _segments_run(self, measurement, writer: SignalWriter, meta: dict, watch: bool):
+        """Every planned segment, from the first; returns the last measurement. With ``watch``, the
+        segments up to the first identification step are held back in the recording until they end
+        without a limit cycle (:data:`LIMIT_CYCLE_WINDOW`); one raises :class:`_LimitCycle`.
+
+        Raises:
+            CampaignAborted: a steering angle near the stops."""
+        ts = self.sheet.drive.cycle_time
+        limit = self.sheet.geometry.steering_limit - 0.03
+        total = self.total_cycles
+        names = [seg.name for seg in self.segments]
+        watched = names.index(IDENTIFICATION_STEPS[0]) + 1 if watch and IDENTIFICATION_STEPS[0] in names else 0
+        window = max(1, int(round(LIMIT_CYCLE_WINDOW / ts)))
+        at_limit = np.zeros(window, dtype=bool)
+        u_limit = self.controller_settings.torque_margin * self.sheet.drive.max_torque * (1 - 1e-9)
+        held = []
+        if watched:
+            writer.hold()
+        for i, (seg, ctrl) in enumerate(zip(self.segments, self.controllers)):
+            start = measurement.time
+            for j in range(ctrl.cycles):
+                u = ctrl.command(j * ts, measurement)
+                measurement = self.vehicle.exchange(u)
+                writer.write(seg.name, seg.mode, measurement, u)
+                if max(map(abs, measurement.alpha)) > limit:
+                    raise CampaignAborted(
+                        f"steering angle {np.round(measurement.alpha, 3)} rad near the stops "
+                        f"during '{seg.name}'")
+                if i < watched:
+                    at_limit[self._done % window] = bool(np.max(np.abs(u)) >= u_limit)
+                    share = float(at_limit.mean())
+                    if share >= LIMIT_CYCLE_SHARE:
+                        raise _LimitCycle(seg.name, measurement.time, share, measurement)
+                self._done += 1
+                if self.on_progress:
+                    self.on_progress(self._done, total, seg.name)
+            segment = {"name": seg.name, "k": seg.mode, "t_start": start, "t_end": measurement.time}
+            if i < watched:
+                held.append(segment)
+                if i == watched - 1:
+                    writer.release()
+                    meta["segments"].extend(held)
+            else:
+                meta["segments"].append(segment)
+            writer.flush()
+            self._write_metadata(meta)
+        return measurement
+
+    def _recover(self, cycle: _LimitCycle, writer: SignalWriter, meta: dict, recoveries: int):
+        """After a limit cycle: the held rows recorded as step :data:`LIMIT_CYCLE_STEP`, the wheels given
+        zero torque for :data:`COAST` s and the steering brought back to α = 0 at the bandwidth designed for
+        ``max_dead_time`` (both recorded under the same step), then the first time the dead-time probe
+        (its bandwidth for every step, ``metadata.json`` ``probe``), the second time that safe bandwidth
+        itself; every step's controller starts afresh. Returns the last measurement.
+
+        Raises:
+            CampaignAborted: a third limit cycle."""
+        ts = self.sheet.drive.cycle_time
+        writer.release(LIMIT_CYCLE_STEP)
+        t_start = float(meta["segments"][-1]["t_end"]) if meta["segments"] else 0.0
+        bandwidth = self.controllers[0].settings.steering_bandwidth
+        meta.setdefault("limit_cycles", []).append({"segment": cycle.segment, "time": cycle.time,
+                                                    "share_at_limit": cycle.share,
+                                                    "steering_bandwidth": bandwidth})
+        if recoveries > 2:
+            raise CampaignAborted(f"steering loop in a limit cycle at the torque limit during "
+                                  f"'{cycle.segment}' at {bandwidth:.3g} rad/s, the bandwidth designed for "
+                                  f"a {self.controller_settings.max_dead_time * 1e3:.0f} ms dead time")
+        measurement = cycle.measurement
+        for _ in range(step_cycles(COAST, ts)):
+            measurement = self.vehicle.exchange(np.zeros(4))
+            writer.write(LIMIT_CYCLE_STEP, 1, measurement, np.zeros(4))
+        safe = replace(self.controller_settings, steering_bandwidth=DeadTimeProbe(
+            self.sheet, self.controller_settings).safe_bandwidth)
+        back = quintic_alignment(np.asarray(measurement.alpha, dtype=float), np.zeros(2), RECOVER,
+                                 name=LIMIT_CYCLE_STEP)
+        measurement = StepController(back, self.sheet, safe).follow(
+            self.vehicle, measurement, lambda m, u: writer.write(LIMIT_CYCLE_STEP, 1, m, u))
+        writer.flush()
+        meta["segments"].append({"name": LIMIT_CYCLE_STEP, "k": 1, "t_start": t_start,
+                                 "t_end": measurement.time})
+        # the steps run so far start afresh (their filters and integrals held the limit cycle)
+        self.controllers = [StepController(seg, self.sheet, ctrl.settings) if ctrl.state is not None else ctrl
+                            for seg, ctrl in zip(self.segments, self.controllers)]
+        meta["controller"]["probe"] = True
+        if recoveries == 1 and self.probe is None:
+            self.probe = DeadTimeProbe(self.sheet, replace(self.controller_settings, probe=True))
+            return self._probe(measurement, writer, meta)
+        for ctrl in self.controllers:
+            ctrl.retune(safe.steering_bandwidth)
+        meta["controller"]["steering_bandwidth"] = safe.steering_bandwidth
+        self._write_metadata(meta)
+        return measurement
 
     def _probe(self, measurement, writer: SignalWriter, meta: dict):
         """The dead-time probe (qomni.ident.probe), recorded as step ``probe``; its steering bandwidth

@@ -49,13 +49,18 @@ class ControllerSettings:
     min_phase_margin: float = 30.0
     # Measure the actuator dead time first and lower the steering bandwidth to it (DeadTimeProbe). Off by
     # default: a suite draw recorded with it named more false effects, among them one on a clean vehicle
-    # (docs/effects.md); without it an actuator delay above about 6 ms drives the steering steps into a
-    # limit cycle at the torque limit.
+    # (docs/effects.md); without it an actuator delay above about 6 ms drives the steering into a limit
+    # cycle at the torque limit, which ``probe_on_limit_cycle`` catches.
     probe: bool = False
     max_dead_time: float = 0.03  # s, the dead time the gains are designed for when the probe sees none
     # Whether the probe's reading sets the steering bandwidth. A run that must repeat another's campaign
     # exactly (the digital twin's reference run) probes too but keeps the bandwidth the other run recorded.
     probe_retunes: bool = True
+    # Where the steering loop falls into a limit cycle at the torque limit in the campaign's first steps
+    # (an actuator delay the default gains cannot take), stop, probe the dead time and start the campaign
+    # again at the bandwidth it gives (ident.campaign.Campaign). A vehicle that never reaches the limit
+    # records exactly what it records without this.
+    probe_on_limit_cycle: bool = True
 
 
 @dataclass

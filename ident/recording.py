@@ -107,6 +107,7 @@ class SignalWriter:
         self._csv = csv.writer(self._file)
         self._csv.writerow(header())
         self.rows = 0
+        self._held: list[list] | None = None
 
     def write(self, step: str, k: int, measurement, motor_torque_cmd) -> None:
         """Record one cycle.
@@ -121,17 +122,35 @@ class SignalWriter:
         m = measurement
         # Python floats (``tolist``): the csv module writes a float as its repr, the shortest text that
         # reads back to the same double; a numpy scalar would be written as its own repr.
-        self._csv.writerow([
-            float(m.time), step, int(k), *_floats(m.alpha), *_floats(m.motor_position),
-            *_floats(m.motor_velocity), *_floats(m.motor_torque), *_floats(motor_torque_cmd),
-        ])
+        row = [float(m.time), step, int(k), *_floats(m.alpha), *_floats(m.motor_position),
+               *_floats(m.motor_velocity), *_floats(m.motor_torque), *_floats(motor_torque_cmd)]
+        if self._held is not None:
+            self._held.append(row)
+            return
+        self._csv.writerow(row)
         self.rows += 1
+
+    def hold(self) -> None:
+        """Keep the following rows back (in memory, as written) until :meth:`release`: a stretch whose
+        step name is decided only at its end (a campaign step that may turn out to be a limit cycle)."""
+        if self._held is None:
+            self._held = []
+
+    def release(self, step: str | None = None) -> None:
+        """Write the held rows in their order, under ``step`` instead of their own step names if given."""
+        held, self._held = self._held or [], None
+        for row in held:
+            if step is not None:
+                row[1] = step
+            self._csv.writerow(row)
+        self.rows += len(held)
 
     def flush(self) -> None:
         self._file.flush()
 
     def close(self) -> None:
         if not self._file.closed:
+            self.release()
             self._file.close()
 
     def __enter__(self) -> "SignalWriter":

@@ -194,7 +194,7 @@ def _controller_of(meta: dict):
     known = {f.name for f in fields(ControllerSettings)}
     values = {"probe": False, **{k: v for k, v in recorded.items() if k in known}}  # no record: no probe step
     try:
-        return ControllerSettings(**{**values, "probe_retunes": False})
+        return ControllerSettings(**{**values, "probe_retunes": False, "probe_on_limit_cycle": False})
     except TypeError as exc:
         raise TwinError(f"metadata.json controller: {exc}") from exc
 

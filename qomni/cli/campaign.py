@@ -53,6 +53,11 @@ def campaign(
         False, "--dead-time-probe/--no-dead-time-probe",
         help="First measure the actuator dead time with a short steering pulse at rest and lower the "
              "steering bandwidth to keep a 30° phase margin with it (needed above about 6 ms of delay)."),
+    limit_cycle_probe: bool = typer.Option(
+        True, "--limit-cycle-probe/--no-limit-cycle-probe",
+        help="Where the steering falls into a limit cycle at the torque limit before the first "
+             "identification step has ended, stop, probe the dead time and start the campaign again at the "
+             "bandwidth it gives (a vehicle that never reaches the limit records the same either way)."),
 ):
     """Run the four-step campaign and the lane change, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
@@ -78,7 +83,7 @@ def campaign(
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
-        run = Campaign(sheet, out, settings, ControllerSettings(probe=dead_time_probe), source=source)
+        run = Campaign(sheet, out, settings, ControllerSettings(probe=dead_time_probe, probe_on_limit_cycle=limit_cycle_probe), source=source)
     except ValueError as exc:
         fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:

@@ -56,7 +56,7 @@ def campaign_margins(effects: dict, out: Path, *, seed: int = 1, quick: bool = T
     from qomni.embedded import embedded_vehicle
     from qomni.emulator.description import VehicleDescription
     from qomni.emulator.effects import EffectSet
-    from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
+    from qomni.ident.campaign import LIMIT_CYCLE_STEP, Campaign, CampaignAborted, CampaignSettings
     from qomni.ident.controller import ControllerSettings
     from qomni.ident.odometry import odometry
     from qomni.ident.recording import read_signals
@@ -74,7 +74,8 @@ def campaign_margins(effects: dict, out: Path, *, seed: int = 1, quick: bool = T
     s = read_signals(Path(out) / "signals.csv")
     limit = sheet.drive.max_torque
     clip = ControllerSettings().torque_margin * limit
-    peak = np.abs(s.motor_torque_cmd).max(axis=1)
+    # the campaign's own steps: not a limit cycle it stopped and started again after
+    peak = np.abs(s.motor_torque_cmd[s.step != LIMIT_CYCLE_STEP]).max(axis=1)
     excursion = np.inf
     if "straight" in s.steps():
         st = s.of_step("straight")
