@@ -240,6 +240,14 @@ def _fit_last(fp, hp, model, lag, sheet, fits: list[Fit], h: Hypothesis, base: F
                                   hold_tail=len(h.parameters))
 
 
+def _retest_last(fp, hp, model, lag, sheet, fits: list[Fit], i: int, h: Hypothesis, cache, levels):
+    """``h`` (the effect of ``fits[i]``) fitted as the last effect, with the other fits' effects free in the
+    model (:func:`_fit_last`): the backward step's re-test and a kept effect's refit."""
+    others = fits[:i] + fits[i + 1:]
+    base = fitting.solve(fp, model, combine(others) if others else None, None, lag, cache)
+    return _fit_last(fp, hp, model, lag, sheet, others, h, base, cache, levels)
+
+
 def _passes_further(cand: fitting.Candidate, alpha: float, floor: dict | None) -> bool:
     """A further effect's gate: p < ``alpha``, present, physical (the added effect's part), confirmed on
     held-out data (:func:`_confirms_further`)."""
@@ -266,9 +274,7 @@ def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, l
         worst, worst_p = None, -1.0
         refits = {}
         for i, c in enumerate(accepted):
-            others = accepted_fits[:i] + accepted_fits[i + 1:]
-            base = fitting.solve(fp, model, combine(others), None, lag, cache)
-            cand = _fit_last(fp, hp, model, lag, sheet, others, c.hypothesis, base, cache, levels)
+            cand = _retest_last(fp, hp, model, lag, sheet, accepted_fits, i, c.hypothesis, cache, levels)
             if cand is not None and _passes_further(cand, alpha, floor):
                 refits[i] = cand
                 continue
@@ -295,11 +301,8 @@ def _refit_kept(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, level
     part of what the kept effect explains). ``refits``: index → that fit where the backward step's last
     round already made it."""
     for i, c in enumerate(accepted):
-        cand = refits.get(i)
-        if cand is None:
-            others = accepted_fits[:i] + accepted_fits[i + 1:]
-            base = fitting.solve(fp, model, combine(others) if others else None, None, lag, cache)
-            cand = _fit_last(fp, hp, model, lag, sheet, others, c.hypothesis, base, cache, levels)
+        cand = refits.get(i) or _retest_last(fp, hp, model, lag, sheet, accepted_fits, i, c.hypothesis, cache,
+                                             levels)
         if cand is None:
             continue
         h = c.hypothesis

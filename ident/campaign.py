@@ -271,7 +271,8 @@ class Campaign:
         names = [seg.name for seg in self.segments]
         watched = names.index(IDENTIFICATION_STEPS[0]) + 1 if watch and IDENTIFICATION_STEPS[0] in names else 0
         window = max(1, int(round(LIMIT_CYCLE_WINDOW / ts)))
-        at_limit = np.zeros(window, dtype=bool)
+        at_limit = np.zeros(window, dtype=bool)            # a ring over the last ``window`` cycles
+        n_at_limit = 0
         u_limit = self.controller_settings.torque_margin * self.sheet.drive.max_torque * (1 - 1e-9)
         held = []
         if watched:
@@ -287,10 +288,11 @@ class Campaign:
                         f"steering angle {np.round(measurement.alpha, 3)} rad near the stops "
                         f"during '{seg.name}'")
                 if i < watched:
-                    at_limit[self._done % window] = bool(np.max(np.abs(u)) >= u_limit)
-                    share = float(at_limit.mean())
-                    if share >= LIMIT_CYCLE_SHARE:
-                        raise _LimitCycle(seg.name, measurement.time, share, measurement)
+                    slot, now = self._done % window, bool(np.max(np.abs(u)) >= u_limit)
+                    n_at_limit += int(now) - int(at_limit[slot])
+                    at_limit[slot] = now
+                    if n_at_limit >= LIMIT_CYCLE_SHARE * window:
+                        raise _LimitCycle(seg.name, measurement.time, n_at_limit / window, measurement)
                 self._done += 1
                 if self.on_progress:
                     self.on_progress(self._done, total, seg.name)
@@ -330,8 +332,11 @@ class Campaign:
         for _ in range(step_cycles(COAST, ts)):
             measurement = self.vehicle.exchange(np.zeros(4))
             writer.write(LIMIT_CYCLE_STEP, 1, measurement, np.zeros(4))
-        safe = replace(self.controller_settings, steering_bandwidth=DeadTimeProbe(
-            self.sheet, self.controller_settings).safe_bandwidth)
+        # the probe's safe bandwidth brings the steering back; a campaign that has not probed yet probes next
+        probe_now = self.probe is None
+        if probe_now:
+            self.probe = DeadTimeProbe(self.sheet, replace(self.controller_settings, probe=True))
+        safe = replace(self.controller_settings, steering_bandwidth=self.probe.safe_bandwidth)
         back = quintic_alignment(np.asarray(measurement.alpha, dtype=float), np.zeros(2), RECOVER,
                                  name=LIMIT_CYCLE_STEP)
         measurement = StepController(back, self.sheet, safe).follow(
@@ -343,8 +348,7 @@ class Campaign:
         self.controllers = [StepController(seg, self.sheet, ctrl.settings) if ctrl.state is not None else ctrl
                             for seg, ctrl in zip(self.segments, self.controllers)]
         meta["controller"]["probe"] = True
-        if recoveries == 1 and self.probe is None:
-            self.probe = DeadTimeProbe(self.sheet, replace(self.controller_settings, probe=True))
+        if probe_now:
             return self._probe(measurement, writer, meta)
         for ctrl in self.controllers:
             ctrl.retune(safe.steering_bandwidth)

@@ -83,7 +83,8 @@ def campaign(
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
-        run = Campaign(sheet, out, settings, ControllerSettings(probe=dead_time_probe, probe_on_limit_cycle=limit_cycle_probe), source=source)
+        controller = ControllerSettings(probe=dead_time_probe, probe_on_limit_cycle=limit_cycle_probe)
+        run = Campaign(sheet, out, settings, controller, source=source)
     except ValueError as exc:
         fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
     try:
