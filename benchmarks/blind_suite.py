@@ -183,14 +183,16 @@ def main(argv=None) -> int:
     summary = write_results(results, results_path, run)
     table = Table(title="Blind check per effect")
     for col in ("Effect", "Cases", "Top-1", "False positives", "Median held-out shrink", "Min shrink",
-                "Median shrink beyond floor", "Min beyond floor", "Median from base fit", "Min from base fit"):
+                "Median shrink beyond floor", "Min beyond floor", "Median from base fit", "Min from base fit",
+                "Missed at range position"):
         table.add_column(col, justify="left" if col == "Effect" else "right")
     for name, e in sorted(summary["per_effect"].items()):
         fmt = (lambda v: "–" if v is None else f"{100 * v:.0f} %")
         table.add_row(name, str(e["cases"]), f"{e['top1']}/{e['cases']}", str(e["false_positives"]),
                       fmt(e["median_holdout_shrink"]), fmt(e["min_holdout_shrink"]),
                       fmt(e["median_excess_shrink"]), fmt(e["min_excess_shrink"]),
-                      fmt(e["median_beyond_base_fit_shrink"]), fmt(e["min_beyond_base_fit_shrink"]))
+                      fmt(e["median_beyond_base_fit_shrink"]), fmt(e["min_beyond_base_fit_shrink"]),
+                      " ".join(f"{x:.2f}" for x in e.get("missed_range_positions", [])) or "–")
     console.print(table)
     acc = summary["top1_accuracy"]
     combos = summary["combinations_all_named"]

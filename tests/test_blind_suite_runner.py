@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from qomni.blind_suite import (MAGNITUDES, PROTOTYPE_OWN, VEHICLES, Case, CaseResult, draw, draw_cases, effect_name,
-                               probe_case, read_results, read_run, run_suite, score)
+                               probe_case, range_position, read_results, read_run, run_suite, score)
 from qomni.emulator.effects import EffectSet
 from qomni.emulator.effects.effect_set import REGISTRY
 
@@ -71,6 +71,42 @@ def test_the_range_ends_are_valid_effects_files_at_the_declared_ends():
         assert len(ends) >= 2
         for table in ends:
             EffectSet.from_dict({effect_name(entry): table})
+
+
+@pytest.mark.parametrize("entry", sorted(MAGNITUDES))
+def test_a_tables_range_position_is_0_at_the_weak_end_1_at_the_strong_end_in_every_direction(entry):
+    """The direction or instance (a payload's quadrant, a factor above 1, a larger wheel) does not move a
+    table in its range: every range end is at 0 or 1, the declared weak end at 0, the strong at 1, and a
+    draw's position is the mean of its numbers' places on the scale it was drawn on."""
+    weak, strong = MAGNITUDES[entry]
+    ends = [range_position(entry, t) for t in REGISTRY[effect_name(entry)].range_ends(entry)]
+    assert range_position(entry, weak) == 0.0 and range_position(entry, strong) == 1.0
+    assert set(np.round(ends, 12)) == {0.0, 1.0}
+    rng = np.random.default_rng(4)
+    positions = [range_position(entry, draw(entry, rng)) for _ in range(300)]
+    assert all(0.0 <= x <= 1.0 for x in positions)
+    assert min(positions) < 0.25 and max(positions) > 0.75 and 0.4 < np.mean(positions) < 0.6
+
+
+def test_range_position_places_each_number_on_its_drawn_scale():
+    # torque constant: deviation 0.1 between 0.05 and 0.15 on the factor's log scale, either side of 1
+    below = range_position("torque_constant_error", {"drive": "rr", "factor": 0.9})
+    above = range_position("torque_constant_error", {"drive": "fl", "factor": 1.1})
+    assert below == pytest.approx(above) == pytest.approx(math.log(0.9 / 0.95) / math.log(0.85 / 0.95))
+    # payload: the mean over mass, both offsets and height, whatever the quadrant
+    table = {"mass": 200.0, "com_offset": [-0.4, 0.05], "height": 0.5}
+    assert range_position("payload", table) == pytest.approx((math.log(4) / math.log(8) + 1 + 0 + 1) / 4)
+    # beyond an end: clipped
+    assert range_position("backlash", {"gap": 0.05}) == 1.0
+
+
+def test_the_score_says_where_in_the_range_the_missed_cases_lie():
+    weak_named = CaseResult(Case("backlash_0_s1", {"backlash": {"gap": 0.002}}, ["backlash"], 1, "drawn", "backlash"),
+                            accepted=["backlash"], accepted_variants=[""])
+    strong_missed = CaseResult(Case("backlash_1_s2", {"backlash": {"gap": 0.02}}, ["backlash"], 2, "drawn",
+                                    "backlash"))
+    e = score([weak_named, strong_missed])["per_effect"]["backlash"]
+    assert e["named_range_positions"] == [0.0] and e["missed_range_positions"] == [1.0]
 
 
 def test_a_prototype_naming_its_own_steering_units_is_no_false_positive():

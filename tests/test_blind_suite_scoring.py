@@ -29,7 +29,9 @@ def test_the_wrong_instance_of_the_right_effect_is_not_top1():
                                                   "min_excess_shrink": None,
                                                   "median_beyond_base_fit_shrink": None,
                                                   "min_beyond_base_fit_shrink": None,
-                                                  "median_beyond_reference_shrink": None}
+                                                  "median_beyond_reference_shrink": None,
+                                                  "named_range_positions": [],
+                                                  "missed_range_positions": []}
 
 
 def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():

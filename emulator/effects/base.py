@@ -166,6 +166,31 @@ class Effect:
         (the campaign must complete at each)."""
         return [dict(t) for t in cls.suite[entry]]
 
+    @classmethod
+    def drawn(cls, entry: str, table: dict) -> dict:
+        """``table`` as :meth:`draw` drew it before :meth:`instance` chose its direction or instance (a
+        payload's offset back in the first quadrant, a torque-constant factor above 1 mirrored below it);
+        the default has none to undo."""
+        return table
+
+    @classmethod
+    def range_position(cls, entry: str, table: dict) -> float | None:
+        """Where ``table`` lies in ``entry``'s realistic range: 0 at the weak end, 1 at the strong end.
+
+        Each number whose two ends differ is placed on the scale :meth:`draw` samples it on (logarithmic
+        between two positive ends, else linear), after :meth:`drawn` has undone the direction or
+        instance; the position is the mean over those numbers, each clipped to [0, 1]. None when the
+        ends differ in no number.
+
+        Raises:
+            KeyError: ``entry`` is not one of the effect's suite entries."""
+        weak, strong = cls.suite[entry]
+        table = cls.drawn(entry, table)
+        positions = [_position(v, a, b) for key, a_value in weak.items()
+                     for v, a, b in zip(_numbers(table.get(key)), _numbers(a_value),
+                                        _numbers(strong.get(key, a_value))) if a != b]
+        return float(np.mean(positions)) if positions else None
+
     # -- hooks -------------------------------------------------------------------------------
     def configure(self, plan: BuildPlan, description) -> None:
         """Change the rigid bodies before the URDF is generated."""
@@ -209,3 +234,21 @@ def _between(a, b, rng: np.random.Generator):
     if a > 0 and b > 0:
         return float(math.exp(rng.uniform(math.log(min(a, b)), math.log(max(a, b)))))
     return float(rng.uniform(min(a, b), max(a, b)))
+
+
+def _numbers(value) -> list[float]:
+    """The numbers of a table value (a list element by element); [] for anything else (a choice)."""
+    if isinstance(value, (list, tuple)):
+        return [x for v in value for x in _numbers(v)]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return []
+    return [float(value)]
+
+
+def _position(value: float, weak: float, strong: float) -> float:
+    """``value``'s place between ``weak`` (0) and ``strong`` (1) on :func:`_between`'s scale, clipped."""
+    if weak > 0 and strong > 0 and value > 0:
+        t = math.log(value / weak) / math.log(strong / weak)
+    else:
+        t = (value - weak) / (strong - weak)
+    return min(max(t, 0.0), 1.0)

@@ -38,6 +38,11 @@ class Payload(Effect):
         return {**table, "com_offset": [float(v * rng.choice((-1.0, 1.0))) for v in table["com_offset"]]}
 
     @classmethod
+    def drawn(cls, entry: str, table: dict) -> dict:
+        """The offset back in the first quadrant."""
+        return {**table, "com_offset": [abs(float(v)) for v in table["com_offset"]]}
+
+    @classmethod
     def range_ends(cls, entry: str) -> list[dict]:
         """Both ends, the strong one in every quadrant."""
         weak, strong = cls.suite[entry]

@@ -36,6 +36,12 @@ class TorqueConstantError(Effect):
         return {**table, "drive": str(rng.choice(WHEELS)), "factor": float(factor)}
 
     @classmethod
+    def drawn(cls, entry: str, table: dict) -> dict:
+        """A factor above 1 mirrored below it (the drawn deviation)."""
+        factor = float(table["factor"])
+        return {**table, "factor": factor if factor <= 1.0 else 2.0 - factor}
+
+    @classmethod
     def range_ends(cls, entry: str) -> list[dict]:
         """The deviations' ends below and above 1."""
         weak, strong = cls.suite[entry]

@@ -30,6 +30,12 @@ class WheelRadius(Effect):
         return {**table, "radius": float(radius)}
 
     @classmethod
+    def drawn(cls, entry: str, table: dict) -> dict:
+        """A larger wheel mirrored to the smaller one of the same deviation from the nominal radius."""
+        radius = float(table["radius"])
+        return {**table, "radius": radius if radius <= cls.NOMINAL else 2 * cls.NOMINAL - radius}
+
+    @classmethod
     def range_ends(cls, entry: str) -> list[dict]:
         """Smaller and larger wheels at both ends."""
         return [{"radius": r} for t in cls.suite[entry] for r in (t["radius"], 2 * cls.NOMINAL - t["radius"])]

@@ -51,6 +51,12 @@ def variant(entry: str, table: dict) -> str | None:
     return None
 
 
+def range_position(entry: str, table: dict) -> float | None:
+    """Where an entry's effects-file table lies in its realistic range: 0 at the weak end, 1 at the strong
+    end (``Effect.range_position``)."""
+    return REGISTRY[effect_name(entry)].range_position(entry, table)
+
+
 def effects_toml(tables: dict[str, dict]) -> str:
     """An effects file (TOML) holding ``tables`` (effect name → parameters)."""
     lines = []

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from qomni.ident.rundir import write_json
 
-from .cases import Case
+from .cases import Case, effect_name, range_position
 
 
 @dataclass
@@ -65,6 +65,15 @@ def noise_floor(ideal: list[CaseResult]) -> dict[str, float]:
     return {name: math.sqrt(sum(v) / len(v)) for name, v in sums.items()}
 
 
+def _range_position(r: CaseResult) -> float | None:
+    """Where a single-effect case's table lies in its entry's realistic range (0 weak end, 1 strong end);
+    None for a case without its suite entry (results written before it was recorded)."""
+    entry = r.case.entry
+    table = r.case.effects.get(effect_name(entry)) if entry else None
+    position = None if table is None else range_position(entry, table)
+    return None if position is None else round(position, 3)
+
+
 def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | None:
     """1 − RMS(after)/RMS(before) of the residual beyond the noise floor (the ideal cases' RMS in the same
     channel, taken as independent of the effect's residual): the share of the effect's own held-out
@@ -82,7 +91,9 @@ def score(results: list[CaseResult]) -> dict:
     (``*_excess_shrink``, when the suite has ideal cases); and the same effect's shrinkage from the base
     fit (``*_beyond_base_fit_shrink``: base parameters moved within their prior first) and from the
     reference run's level of the hypothesis (``median_beyond_reference_shrink``, the significance
-    gate's)."""
+    gate's); and where in the effect's realistic range its named and missed cases lie
+    (``named_range_positions``, ``missed_range_positions``: 0 the weak end, 1 the strong end, sorted),
+    which shows whether what is missed is the weak end or spread over the range."""
     single = [r for r in results if len(r.case.truth) == 1 and not r.error]
     ideal = [r for r in results if not r.case.truth and not r.error]
     clean = [r for r in ideal if not r.case.tolerated]      # the floor: vehicles with nothing unmodelled
@@ -92,9 +103,10 @@ def score(results: list[CaseResult]) -> dict:
     for r in single:
         e = per_effect.setdefault(r.case.entry or r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
                                                                     "shrink": [], "excess": [], "base": [],
-                                                                    "beyond": []})
+                                                                    "beyond": [], "named": [], "missed": []})
         e["cases"] += 1
         e["top1"] += int(r.top1)
+        e["named" if r.top1 else "missed"].append(_range_position(r))
         e["false_positives"] += len(r.false_positives)
         t = r.true_shrink.get(r.case.truth[0])
         if t is not None:
@@ -114,6 +126,8 @@ def score(results: list[CaseResult]) -> dict:
         e["median_beyond_base_fit_shrink"] = float(statistics.median_high(bf)) if bf else None
         e["min_beyond_base_fit_shrink"] = float(min(bf)) if bf else None
         e["median_beyond_reference_shrink"] = float(statistics.median_high(b)) if b else None
+        for kind in ("named", "missed"):
+            e[f"{kind}_range_positions"] = sorted(x for x in e.pop(kind) if x is not None)
     return {
         "top1_accuracy": sum(r.top1 for r in single) / len(single) if single else None,
         "effect_cases": len(single),
