@@ -327,8 +327,10 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     if beyond_reference and not present(cand):
         cand.notes.append(f"differs from the reference run's level but is not there itself (its level is "
                           f"zero: p = {cand.presence_p:.2g}): not named")
-    if not physical:
+    if not h.physical(best.theta):
         cand.notes.append("fitted sign or size is physically impossible for this effect")
+    elif not physical:
+        cand.notes.append(f"below the smallest size of practical relevance ({h.relevant:g}): not named")
     if evaluation.removed <= 0 < evaluation.shrink_affected:
         cand.notes.append(f"adds held-out residual overall ({-evaluation.removed:.3g} weighted) while it shrinks "
                           f"{evaluation.affected} by {100 * evaluation.shrink_affected:.0f} %: not confirmed")

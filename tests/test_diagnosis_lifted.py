@@ -83,3 +83,16 @@ def test_a_factor_the_lifted_run_contradicts_is_not_named(lifted, wheel, value, 
     resolve_drive([c], _rows(lifted))
     assert not c.significant, why
     assert f"drive {wheel}'s factor" in c.notes[0] and "contradicts" in c.notes[0]
+
+
+def test_a_torque_constant_difference_within_a_motors_thermal_drift_is_not_relevant():
+    """Below 1 % (10 K of magnet warming) a drive's torque constant is not reported as a fault, either sign;
+    a fitted test names it as too small, not as physically impossible."""
+    from qomni.diagnosis.hypotheses.base import plausible
+    from qomni.diagnosis.hypotheses.torque_constant_error import RELEVANT_FACTOR, TORQUE_CONSTANT
+    h = TORQUE_CONSTANT[0]
+    assert RELEVANT_FACTOR == 0.01
+    for value in (0.005, -0.005, 0.0099):
+        assert h.physical(np.array([value])) and not plausible(h, np.array([value]))
+    for value in (0.012, -0.05, 0.15):
+        assert plausible(h, np.array([value]))

@@ -125,10 +125,15 @@ def resolve_drive(candidates: list, rows: RuleRows) -> None:
                            f"(z = {z[w][1]:.1f})")
 
 
+#: 1 % of the torque constant: a permanent-magnet motor's torque constant falls with its magnets'
+#: temperature (NdFeB about −0.1 %/K), so 10 K of warming in a campaign moves it by as much, and drive
+#: makers specify it to ±5–10 %. A smaller difference between drives is no fault of one drive to report.
+RELEVANT_FACTOR = 0.01
+
 TORQUE_CONSTANT = tuple(
     Hypothesis("torque_constant_error", _variant(w), ("factor_minus_one",), _torque_constant(j),
                magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"),
-               resolve=resolve_drive)
+               relevant=RELEVANT_FACTOR, resolve=resolve_drive)
     for j, w in enumerate(WHEELS))
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
