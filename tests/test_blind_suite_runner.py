@@ -132,6 +132,37 @@ def test_the_results_file_records_the_master_seed_and_each_draw_and_a_rerun_resu
     assert sorted(r.case.name for r in again) == sorted(c.name for c in cases)
 
 
+def test_a_rerun_runs_again_the_cases_that_ended_in_an_error(tmp_path):
+    cases = [c for c in draw_cases(22, singles=1, pairs=1, triples=1, other_vehicle_singles=0, clean=1)
+             if len(c.truth) != 1][:2]
+    path = tmp_path / "r.json"
+    first = run_suite(cases, tmp_path, workers=1, results_path=path, runner=_FailFirst(cases[0].name))
+    assert [bool(r.error) for r in sorted(first, key=lambda r: r.case.name != cases[0].name)] == [True, False]
+    again = run_suite(cases, tmp_path, workers=1, results_path=path, runner=_OnlyNew({cases[0].name}))
+    assert sorted(r.case.name for r in again) == sorted(c.name for c in cases)
+    assert not any(r.error for r in read_results(path))
+
+
+def test_a_case_campaign_replaces_what_an_attempt_cut_short_left(tmp_path, monkeypatch):
+    """The suite runs a case's campaign only where its directory has no identification: what an interrupted
+    attempt left there is replaced (--force), and a failure reports the command's own message."""
+    import subprocess
+    from types import SimpleNamespace as NS
+
+    from qomni.suite import runner
+
+    seen = []
+
+    def fake_run(cmd, **kw):
+        seen.append(cmd)
+        return NS(returncode=2, stdout="error: already holds single_axis of an earlier run\n", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    with pytest.raises(RuntimeError, match="already holds single_axis"):
+        runner.run_campaign(tmp_path / "case", {"backlash": {"gap": 0.01}}, 7, quick=True)
+    assert "--force" in seen[0] and seen[0][seen[0].index("--seed") + 1] == "7"
+
+
 def test_an_unknown_reference_mode_is_refused(tmp_path):
     with pytest.raises(ValueError, match="reference"):
         run_suite([], tmp_path, reference="nominal")
@@ -147,6 +178,19 @@ class _OnlyNew:
         if case.name not in self.new:
             raise AssertionError(f"{case.name} ran again")
         return probe_case(case, work, reference, quick)
+
+
+class _FailFirst:
+    """A picklable runner whose case ``name`` ends in an error, as a campaign cut short does."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def __call__(self, case, work, reference, quick):
+        r = probe_case(case, work, reference, quick)
+        if case.name == self.name:
+            r.error = "RuntimeError: campaign cut short"
+        return r
 
 
 def _benchmark_main():

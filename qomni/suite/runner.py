@@ -40,12 +40,14 @@ def _description(case: Case):
 def run_campaign(out: Path, effects: dict | None, seed: int, quick: bool, vehicle: str = "") -> None:
     """One campaign, as ``qomni campaign`` runs it, on ``vehicle`` ("" the built-in one; a ``VEHICLES``
     key) with ``effects`` on its ideal bodies (None: the vehicle as built, the prototype's own units).
+    What ``out`` holds is replaced (``--force``): the suite runs a case's campaign only where its run
+    directory has no identification, i.e. an attempt of the same case cut short or failed.
 
     Raises:
         RuntimeError: the campaign command failed (its log's tail).
     """
     out.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "qomni.cli", "campaign", "--out", str(out), "--seed", str(seed)]
+    cmd = [sys.executable, "-m", "qomni.cli", "campaign", "--out", str(out), "--seed", str(seed), "--force"]
     if effects is not None:
         fx = out.parent / f"{out.name}.effects.toml"
         fx.write_text(effects_toml(effects))
@@ -55,9 +57,10 @@ def run_campaign(out: Path, effects: dict | None, seed: int, quick: bool, vehicl
     cmd += ["--quick"] if quick else []
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    (out.parent / f"{out.name}.log").write_text(proc.stdout + proc.stderr)
+    log = proc.stdout + proc.stderr
+    (out.parent / f"{out.name}.log").write_text(log)
     if proc.returncode != 0:
-        raise RuntimeError(f"campaign {out} failed ({proc.returncode}): {proc.stderr[-800:]}")
+        raise RuntimeError(f"campaign {out} failed ({proc.returncode}): {log.strip()[-800:]}")
 
 
 def ideal_reference(work: Path, vehicle: str = "") -> Path:
@@ -158,8 +161,9 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
         for vehicle in sorted({c.vehicle for c in all_cases}):
             reference_run(work, quick, vehicle=vehicle)
     wanted = {c.name for c in all_cases}
+    # a case that ended in an error (a campaign cut short, a worker lost) is run again
     results = [r for r in (read_results(results_path) if results_path and Path(results_path).exists() else [])
-               if r.case.name in wanted]
+               if r.case.name in wanted and not r.error]
     done = {r.case.name for r in results}
     own = executor is None
     executor = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1)
