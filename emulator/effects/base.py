@@ -236,6 +236,12 @@ def _between(a, b, rng: np.random.Generator):
     return float(rng.uniform(min(a, b), max(a, b)))
 
 
+def mirrored(value: float, nominal: float) -> float:
+    """``value`` reflected about ``nominal``: the same deviation on the other side (a torque-constant factor
+    above 1, a wheel larger than the data sheet's), as ``instance`` draws it and ``drawn`` undoes it."""
+    return 2 * nominal - value
+
+
 def _numbers(value) -> list[float]:
     """The numbers of a table value (a list element by element); [] for anything else (a choice)."""
     if isinstance(value, (list, tuple)):

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import WHEELS, Effect, Param
+from .base import WHEELS, Effect, Param, mirrored
 
 
 class TorqueConstantError(Effect):
@@ -32,17 +32,17 @@ class TorqueConstantError(Effect):
     @classmethod
     def instance(cls, entry: str, table: dict, rng) -> dict:
         """Any drive, the factor below or above 1 by the drawn deviation."""
-        factor = table["factor"] if rng.random() < 0.5 else 2.0 - table["factor"]
+        factor = table["factor"] if rng.random() < 0.5 else mirrored(table["factor"], 1.0)
         return {**table, "drive": str(rng.choice(WHEELS)), "factor": float(factor)}
 
     @classmethod
     def drawn(cls, entry: str, table: dict) -> dict:
         """A factor above 1 mirrored below it (the drawn deviation)."""
         factor = float(table["factor"])
-        return {**table, "factor": factor if factor <= 1.0 else 2.0 - factor}
+        return {**table, "factor": factor if factor <= 1.0 else mirrored(factor, 1.0)}
 
     @classmethod
     def range_ends(cls, entry: str) -> list[dict]:
         """The deviations' ends below and above 1."""
         weak, strong = cls.suite[entry]
-        return [dict(t, factor=f) for t in (weak, strong) for f in (t["factor"], 2.0 - t["factor"])]
+        return [dict(t, factor=f) for t in (weak, strong) for f in (t["factor"], mirrored(t["factor"], 1.0))]

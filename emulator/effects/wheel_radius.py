@@ -4,7 +4,7 @@ The physical wheel (collision sphere, ride height) gets ``radius``; the data she
 the identification, keep the nominal r. The vehicle travels 2π·radius per wheel revolution."""
 from __future__ import annotations
 
-from .base import BuildPlan, Effect, Param
+from .base import BuildPlan, Effect, Param, mirrored
 
 
 class WheelRadius(Effect):
@@ -26,16 +26,16 @@ class WheelRadius(Effect):
     @classmethod
     def instance(cls, entry: str, table: dict, rng) -> dict:
         """A worn (smaller) or a larger wheel by the drawn deviation from the nominal 0.1 m."""
-        radius = table["radius"] if rng.random() < 0.5 else 2 * cls.NOMINAL - table["radius"]
+        radius = table["radius"] if rng.random() < 0.5 else mirrored(table["radius"], cls.NOMINAL)
         return {**table, "radius": float(radius)}
 
     @classmethod
     def drawn(cls, entry: str, table: dict) -> dict:
         """A larger wheel mirrored to the smaller one of the same deviation from the nominal radius."""
         radius = float(table["radius"])
-        return {**table, "radius": radius if radius <= cls.NOMINAL else 2 * cls.NOMINAL - radius}
+        return {**table, "radius": radius if radius <= cls.NOMINAL else mirrored(radius, cls.NOMINAL)}
 
     @classmethod
     def range_ends(cls, entry: str) -> list[dict]:
         """Smaller and larger wheels at both ends."""
-        return [{"radius": r} for t in cls.suite[entry] for r in (t["radius"], 2 * cls.NOMINAL - t["radius"])]
+        return [{"radius": r} for t in cls.suite[entry] for r in (t["radius"], mirrored(t["radius"], cls.NOMINAL))]
