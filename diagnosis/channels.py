@@ -142,6 +142,9 @@ class ChannelData:
         nuisance: (n, m) columns with free coefficients per channel that belong to no effect
             (kinematic: the constant of integration and the chassis' creep seen by the held side's
             two wheels; rolling: the constant of integration; torque: none).
+        paired: (n,) the residual a paired reference run (the same campaign on the model's twin,
+            :mod:`.paired`) leaves at the same instants, subtracted from this channel's residual; None
+            where the channel is not paired.
     """
 
     name: str
@@ -156,6 +159,7 @@ class ChannelData:
     fitted: np.ndarray
     context: StepContext = field(repr=False)
     nuisance: np.ndarray = field(repr=False, default=None)
+    paired: np.ndarray | None = field(repr=False, default=None)
 
     def __post_init__(self):
         if self.nuisance is None:
@@ -163,7 +167,10 @@ class ChannelData:
 
     @property
     def residual(self) -> np.ndarray:
-        """(n,) y − model: what the given model leaves unexplained."""
+        """(n,) y − model: what the given model leaves unexplained; of a paired channel, beyond what it
+        leaves at the same instants of the paired reference run (y − model − paired)."""
+        if self.paired is not None:
+            return self.y - self.model - self.paired
         return self.y - self.model
 
     @property

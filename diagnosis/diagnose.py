@@ -37,6 +37,7 @@ from . import evaluation
 from . import fit as fitting
 from . import where as where_
 from .channels import ChannelData, channels
+from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
 from .problem import Fit, MeasuredBase, Problem, make_problem
@@ -135,6 +136,9 @@ class Diagnosis:
     #: base parameter → (value, std) measured on the lifted vehicle that holds it in the fits where the
     #: base parameters are otherwise free (:func:`measured_base`); empty when none
     lifted: dict = field(default_factory=dict)
+    #: the torque channels diagnosed beyond the paired reference run's residual at the same instants
+    #: (:mod:`.paired`); empty where the reference is not the data's campaign run again
+    paired_channels: list[str] = field(default_factory=list)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -369,22 +373,33 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if model_from_data and on_lifted_wheels is not None:
         lifted = on_lifted_wheels.friction
         measured = measured_base(model, lifted)
-    fp, hp = make_problem(chans, lag, hold, base_prior=prior, measured=measured)
     cache: dict = {}
     levels: dict = {}
-    ref_problem = None
+    ref_problem = ref_plain = None
+    fit_chans, paired_names = chans, []
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
-        r_signals, r_sheet, _ = _load_run(reference_dir, model)
+        r_signals, r_sheet, r_meta = _load_run(reference_dir, model)
         ref = channels(r_signals, r_sheet, model)
         # the twin's wheels have the model's friction, lifted or not, measured as precisely as the data's
         ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
-        ref_problem, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
+        ref_plain, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
+        ref_problem = ref_plain
+        if hold is None and paired_runs(meta, r_meta, sheet.drive.cycle_time):
+            fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time)
+            paired_names = [c.name for c in fit_chans if c.paired is not None]
+    fp, hp = make_problem(fit_chans, lag, hold, base_prior=prior, measured=measured)
+    if paired_names:
+        own_weights = {c.name: w for c, w in zip(fp.channels, fp.weights) if c.paired is not None}
+        ref_problem, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured,
+                                      weights_of=own_weights)
+    if ref_problem is not None:
         levels = fitting.reference_levels(ref_problem, model, hypotheses, lag, cache)
     base = fitting.solve(fp, model, None, None, lag, cache)
     candidates = [c for c in (fitting.fit_hypothesis(fp, hp, model, h, base, lag, sheet, cache,
                                                      levels.get(h.label))
                               for h in hypotheses) if c is not None]
-    all_rows = fp if hold is not None else make_problem(chans, lag, chans, base_prior=prior, measured=measured)[0]
+    all_rows = fp if hold is not None else make_problem(fit_chans, lag, fit_chans, base_prior=prior,
+                                                        measured=measured)[0]
     rows = RuleRows(all_rows, ref_problem, model, lag, cache,
                     None if on_lifted_wheels is None else on_lifted_wheels.wheels)
     for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
@@ -395,7 +410,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if first is not None:
         accepted.append(first)
         accepted_fits.append(first.fit)
-        floor = _own_floor(ref_problem, model, lag, cache)
+        floor = _own_floor(ref_plain, model, lag, cache)
         while len(accepted) < MAX_EFFECTS:
             more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
                                 floor, rows)
@@ -438,9 +453,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                    f"those rows are not fitted): {verdict}")
     final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
     simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
-    ref_chans = [] if ref_problem is None else ref_problem.channels
-    ref_sim = _simulation(ref_problem, model, base, final, accepted, sheet.geometry.r) \
-        if simulate and ref_problem is not None else {}
+    ref_chans = [] if ref_plain is None else ref_plain.channels
+    ref_sim = _simulation(ref_plain, model, base, final, accepted, sheet.geometry.r) \
+        if simulate and ref_plain is not None else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
@@ -452,8 +467,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                             cache), data_run,
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
-                     _reference_holdout(ref_problem, accepted_fits, len(base.delta_p)), ref_sim,
-                     model_from_data, equivalent, lifted or {})
+                     _reference_holdout(ref_plain, accepted_fits, len(base.delta_p)), ref_sim,
+                     model_from_data, equivalent, lifted or {}, paired_names)
 
 
 def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Candidate]) -> dict:

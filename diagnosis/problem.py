@@ -58,12 +58,15 @@ def channel_lag(ch: ChannelData, lag: int) -> int:
 
 def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelData] | None = None,
                  window: float = WINDOW, base_prior: bool = True,
-                 measured: MeasuredBase | None = None) -> tuple[Problem, Problem]:
+                 measured: MeasuredBase | None = None,
+                 weights_of: dict[str, float] | None = None) -> tuple[Problem, Problem]:
     """The fitting problem and the held-out problem.
 
     Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
     row of ``channels`` is fitted and ``holdout`` is evaluated. ``base_prior``, ``measured``:
-    :attr:`Problem.base_prior`, :attr:`Problem.measured`.
+    :attr:`Problem.base_prior`, :attr:`Problem.measured`. A channel is weighted by 1/(σ_c √L_c), σ_c the
+    RMS of its residual on the fit rows, unless ``weights_of`` (channel name → weight) gives its weight:
+    a paired reference run's channels have no residual of their own and take the data's weights.
     """
     weights = []
     fit_rows, hold_rows, wins = [], [], []
@@ -76,6 +79,9 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         else:
             fit_rows.append(ch.fitted.copy())
         sel = fit_rows[-1]
+        if weights_of is not None and ch.name in weights_of:
+            weights.append(weights_of[ch.name])
+            continue
         r = ch.residual[sel]
         if ch.nuisance.shape[1] and sel.any():   # the noise scale is what the nuisance terms leave
             coef, *_ = np.linalg.lstsq(ch.nuisance[sel], r, rcond=None)

@@ -147,6 +147,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "data_run": d.data_run,
         "reference": d.reference,
         "reference_parameters": reference_parameters(d.reference),
+        "paired_channels": d.paired_channels,
         "model_identified_on_data": d.model_from_data,
         "base_parameters": _base_parameters(d),
         "lifted_wheel_friction": {n: {"value": v, "std": s} for n, (v, s) in d.lifted.items()},

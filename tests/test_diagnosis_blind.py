@@ -144,6 +144,10 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     twin_meta = json.loads((out / "twin_reference" / "metadata.json").read_text())
     data_meta = json.loads((run / "metadata.json").read_text())
     assert twin_meta["settings"] == data_meta["settings"] and twin_meta["status"] == "complete"
+    # the twin ran the data's campaign sample for sample: every torque channel is diagnosed beyond it
+    assert twin_meta["segments"] == data_meta["segments"]
+    torque = {c for c in gap["model_holdout_rms"] if "/kinematic_" not in c and "/rolling_" not in c}
+    assert torque and set(gap["paired_channels"]) == torque
 
 
 @pytest.mark.slow
@@ -180,3 +184,19 @@ def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_whe
     assert c_rr["ci"][0] <= 0.008 <= c_rr["ci"][1] and c_rr["magnitude"] == pytest.approx(0.008, rel=0.15)
     assert set(gap["lifted_wheel_friction"]) == {"d_vw", "d_cw"}
     assert "lifted vehicle" in gap["base_parameters"]
+
+
+@pytest.mark.slow
+def test_a_small_payload_is_named_against_the_runs_own_twin_sample_for_sample(tmp_path):
+    """80 kg at (−0.10, 0.15) m (first moment 14.4 kg m): the same-run model holds its mass and yaw inertia,
+    and what is left (the first moment's forces in the lane change) is a few newtons under the model's own
+    12 N of lane-change residual. The twin ran the data's campaign, so that residual is diagnosed beyond
+    the twin's at the same samples (diagnosis/paired.py), and the payload is named with its first moment."""
+    from qomni.blind_suite import run_campaign
+
+    run = tmp_path / "payload"
+    run_campaign(run, {"payload": {"mass": 80.0, "com_offset": [-0.1, 0.15], "height": 0.2}}, seed=36, quick=True)
+    gap = _diagnose_against_own_twin(run, run / "twin_gap")
+    assert "lane_change/x_ch" in gap["paired_channels"]
+    assert [a["name"] for a in gap["accepted"]] == ["payload"], gap["verdict"]
+    assert 0.5 * 14.4 < gap["accepted"][0]["magnitude"] < 2 * 14.4

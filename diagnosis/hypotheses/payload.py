@@ -35,12 +35,14 @@ def _offset_columns(ch: ChannelData, nonlinear):
 
 
 def _first_moment(theta, cov, nonlinear, sheet) -> Magnitude:
-    """|s| = |m·(x_c, y_c)| [kg m] with a delta-method 95 % interval (along the fitted direction)."""
+    """|s| = |m·(x_c, y_c)| [kg m] with a delta-method 95 % interval (along the fitted direction; a size
+    is not negative, so its lower end is at least 0)."""
     s = np.asarray(theta[:2], dtype=float)
     size = float(np.hypot(*s))
     direction = s / size if size > 0 else np.array([1.0, 0.0])
     sd = math.sqrt(max(float(direction @ np.asarray(cov)[:2, :2] @ direction), 0.0))
-    return Magnitude(size, _ci(size, sd), "kg m", "first moment of the mass off the chassis centre")
+    low, high = _ci(size, sd)
+    return Magnitude(size, (max(low, 0.0), high), "kg m", "first moment of the mass off the chassis centre")
 
 
 #: The payload against a model identified on the same data: the centre-of-mass offset's first moments

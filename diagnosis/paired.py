@@ -1,0 +1,86 @@
+"""A paired reference run: the data's own campaign, run on the model's digital twin, sample for sample.
+
+The model's structure is not the vehicle's even when nothing is missing (tanh friction where real joints
+stick, the filter's smear of the stick-slip transients, the solver's contacts, and in the lane change the
+steering's transients the paper's rigid model does not hold). The twin runs the data's campaign with the
+data's settings, excitation seed and segments, and the same model leaves nearly the same residual in both
+runs at the same instants: on the full campaign's lane change 12–15 N RMS in the data and in the twin,
+correlated at 0.98–0.99, 1.7–2.0 N apart on clean vehicles. Subtracting the twin's residual at the same
+instant leaves the gap itself: what the vehicle does that the twin does not (a 163 kg payload: 7.0 N of
+the lane change's 15.6).
+
+A torque channel of the data is *paired* where the reference run is paired (:func:`paired_runs`) and the
+twin has the same channel: its residual is then the data's minus the twin's at the same sample
+(``ChannelData.paired``), and rows the twin does not have are not fitted. The reference run's own paired
+channels then hold no residual: every hypothesis' reference level there is zero, and the reference level
+of a hypothesis that also acts in unpaired channels comes from those alone, weighted as in the data.
+Kinematic and rolling channels stay unpaired: they are positions measured to within the sensors' LSB, and
+a twin's differently drawn noise would add to them more than its structure removes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from .channels import ChannelData
+
+#: Segment boundaries of the two runs may differ by this fraction of a cycle (text round-off).
+SEGMENT_TOLERANCE = 0.5
+
+
+def paired_runs(data_meta: dict, reference_meta: dict, cycle_time: float) -> bool:
+    """Whether the reference run is the data's campaign run again: the same campaign ``settings``
+    (steps, excitation design, seed, durations) and the same ``segments`` (step names, modes, start and
+    end times within half a cycle) in both runs' ``metadata.json``.
+
+    Args:
+        data_meta, reference_meta: the two runs' ``metadata.json`` contents.
+        cycle_time: the drives' cycle time T_s [s].
+    """
+    if not data_meta.get("settings") or data_meta.get("settings") != reference_meta.get("settings"):
+        return False
+    a, b = data_meta.get("segments") or [], reference_meta.get("segments") or []
+    if not a or len(a) != len(b):
+        return False
+    tol = SEGMENT_TOLERANCE * cycle_time
+    return all(x.get("name") == y.get("name") and x.get("k") == y.get("k")
+               and math.isclose(float(x["t_start"]), float(y["t_start"]), abs_tol=tol)
+               and math.isclose(float(x["t_end"]), float(y["t_end"]), abs_tol=tol) for x, y in zip(a, b))
+
+
+def pair_channels(data: list[ChannelData], reference: list[ChannelData],
+                  cycle_time: float) -> tuple[list[ChannelData], list[ChannelData]]:
+    """The torque channels of both runs paired sample for sample (see the module).
+
+    Args:
+        data, reference: the channels of the data run and of its paired reference run
+            (:func:`paired_runs`), under the same model.
+        cycle_time: T_s [s]; rows are matched by their sample index round(t/T_s).
+    Returns:
+        (data channels, reference channels): each torque channel both runs have with ``paired`` set (on
+        the data: the reference's residual at the same samples; on the reference: its own residual, so
+        that it holds none), every other channel as it was. A data row without a reference sample is
+        not fitted.
+    """
+    ref_by_name = {c.name: c for c in reference if c.kind == "torque"}
+    out_data, paired_names = [], set()
+    for ch in data:
+        ref = ref_by_name.get(ch.name)
+        if ch.kind != "torque" or ref is None:
+            out_data.append(ch)
+            continue
+        k_ref = np.rint(ref.time / cycle_time).astype(np.int64)
+        k_data = np.rint(ch.time / cycle_time).astype(np.int64)
+        order = np.argsort(k_ref)
+        at = np.clip(np.searchsorted(k_ref[order], k_data), 0, len(k_ref) - 1)
+        found = k_ref[order][at] == k_data
+        twin = np.where(found, ref.residual[order][at], 0.0)
+        out_data.append(replace(ch, fitted=ch.fitted & found, paired=twin))
+        paired_names.add(ch.name)
+    out_ref = [replace(c, paired=c.residual.copy()) if c.name in paired_names else c for c in reference]
+    return out_data, out_ref
+
+
+__all__ = ["SEGMENT_TOLERANCE", "pair_channels", "paired_runs"]

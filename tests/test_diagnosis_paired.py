@@ -1,0 +1,66 @@
+"""A paired reference run (the data's campaign on the model's twin): which runs pair, and how a torque
+channel's residual becomes the data's beyond the twin's at the same sample (diagnosis/paired.py)."""
+from types import SimpleNamespace
+
+import numpy as np
+
+from qomni.diagnosis.channels import ChannelData
+from qomni.diagnosis.paired import pair_channels, paired_runs
+
+TS = 0.002
+SETTINGS = {"seed": 7, "steps": ["steer_left", "straight"], "duration": 12.0}
+SEGMENTS = [{"name": "rest", "k": 1, "t_start": 0.0, "t_end": 0.502},
+            {"name": "steer_left", "k": 1, "t_start": 0.502, "t_end": 12.504}]
+
+
+def _channel(name, kind, time, y, model=None, fitted=None):
+    n = len(time)
+    context = SimpleNamespace(st=SimpleNamespace(time=np.asarray(time)), keep=np.ones(n, bool))
+    return ChannelData(name, kind, "N", 0, np.asarray(y, float), np.zeros((n, 10)),
+                       np.zeros(n) if model is None else np.asarray(model, float), np.zeros(n), np.zeros(n),
+                       np.ones(n, bool) if fitted is None else np.asarray(fitted), context)
+
+
+def test_runs_pair_only_where_the_reference_ran_the_datas_campaign():
+    data = {"settings": SETTINGS, "segments": SEGMENTS}
+    assert paired_runs(data, {"settings": dict(SETTINGS), "segments": [dict(s) for s in SEGMENTS]}, TS)
+    # a boundary written with round-off within half a cycle still pairs
+    shifted = [dict(s) for s in SEGMENTS]
+    shifted[1]["t_end"] += 0.4 * TS
+    assert paired_runs(data, {"settings": SETTINGS, "segments": shifted}, TS)
+    # another seed, a step a cycle longer, another step order, no segments: not the same campaign
+    assert not paired_runs(data, {"settings": {**SETTINGS, "seed": 8}, "segments": SEGMENTS}, TS)
+    longer = [dict(s) for s in SEGMENTS]
+    longer[1]["t_end"] += TS
+    assert not paired_runs(data, {"settings": SETTINGS, "segments": longer}, TS)
+    assert not paired_runs(data, {"settings": SETTINGS, "segments": SEGMENTS[::-1]}, TS)
+    assert not paired_runs(data, {"settings": SETTINGS}, TS)
+    assert not paired_runs({"segments": SEGMENTS}, {"segments": SEGMENTS}, TS)
+
+
+def test_a_paired_torque_channel_keeps_what_the_twin_does_not_show_at_the_same_sample():
+    rng = np.random.default_rng(3)
+    t = 1.0 + TS * np.arange(400)
+    structure = 12.0 * np.sin(2 * np.pi * 1.3 * t)          # the model's own residual, in both runs
+    effect = 2.0 * np.cos(2 * np.pi * 0.7 * t)              # only in the data
+    model = 5.0 * np.ones_like(t)
+    data_y = model + structure + effect + 0.1 * rng.standard_normal(len(t))
+    # the twin's rows: one sample missing, the rest in another order, times with round-off
+    keep = np.ones(len(t), bool)
+    keep[17] = False
+    order = rng.permutation(np.flatnonzero(keep))
+    twin_y = model + structure + 0.1 * rng.standard_normal(len(t))
+    data = [_channel("lane_change/x_ch", "torque", t, data_y, model),
+            _channel("steer_left/kinematic_fl", "kinematic", t, np.ones_like(t))]
+    ref = [_channel("lane_change/x_ch", "torque", t[order] + 1e-9, twin_y[order], model[order]),
+           _channel("steer_left/kinematic_fl", "kinematic", t, np.zeros_like(t))]
+    d, r = pair_channels(data, ref, TS)
+
+    gap = d[0]
+    assert gap.paired is not None and not gap.fitted[17] and gap.fitted.sum() == len(t) - 1
+    rows = gap.fitted
+    assert np.sqrt(np.mean((gap.residual[rows] - effect[rows]) ** 2)) < 0.2      # the structure is gone
+    assert np.sqrt(np.mean(data[0].residual ** 2)) > 8.0                         # it was there before
+    np.testing.assert_allclose(r[0].residual, 0.0, atol=1e-12)                   # the twin holds none of it
+    # kinematic channels stay as they are, in both runs
+    assert d[1] is data[1] and r[1] is ref[1] and d[1].paired is None
