@@ -4,8 +4,8 @@ The model's structure is not the vehicle's even when nothing is missing (tanh fr
 stick, the filter's smear of the stick-slip transients, the solver's contacts, and in the lane change the
 steering's transients the paper's rigid model does not hold). The twin runs the data's campaign with the
 data's settings, excitation seed and segments, and the same model leaves nearly the same residual in both
-runs at the same instants: on the full campaign's lane change 12–15 N RMS in the data and in the twin,
-correlated at 0.98–0.99, 1.7–2.0 N apart on clean vehicles. Subtracting the twin's residual at the same
+runs at the same instants: on the full campaign's lane change 12–18 N RMS in the data and in the twin,
+correlated at 0.98–0.99, 1.7–2.1 N apart on clean vehicles. Subtracting the twin's residual at the same
 instant leaves the gap itself: what the vehicle does that the twin does not (a 163 kg payload: 7.0 N of
 the lane change's 15.6).
 
