@@ -348,7 +348,10 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             of ``data_dir`` are held out.
         reference_dir: the run the model was identified on, if it is another run than ``data_dir``:
             each hypothesis is then tested beyond the level it already has there (e.g. the
-            stick-slip transients of real static friction, which a Stribeck column also fits).
+            stick-slip transients of real static friction, which a Stribeck column also fits). Where it
+            ran the data's own campaign (the twin, :func:`.paired.paired_runs`) and no ``holdout_dir``
+            is given, each torque channel is diagnosed beyond its residual at the same sample
+            (:mod:`.paired`).
         simulate: also compare forward simulations (a few seconds of CPU).
         model_from_data: the model was identified on ``data_dir`` itself. Its base parameters are then
             free in every fit instead of held within PRIOR_STD_FACTOR·σ_model of the identified values:
