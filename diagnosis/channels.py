@@ -44,6 +44,9 @@ from qomni.ident.symbolic import WHEELS
 ROLLING_STEPS = ("rotation",)
 #: Coordinates of the lane change (validation step) that become torque channels.
 LANE_CHANGE_COORDINATES = ("x_ch",)
+#: The lane change's steering coordinate: the one step whose steering turns while the wheels roll at
+#: speed, so that a low-speed friction peak there is the steering joints' (``hypotheses.stribeck``).
+LANE_CHANGE_STEERING = ("alpha_v",)
 #: Rows cut at both ends of every step: zero-phase filter edge effects (``filtering.padlen``).
 EDGE_ROWS = 60
 #: A drive at this fraction of its ``max_torque`` is at its traction limit; rows within
@@ -336,7 +339,7 @@ def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:
 
 
 def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
-             steps=None) -> list[ChannelData]:
+             steps=None, lane_change=LANE_CHANGE_COORDINATES) -> list[ChannelData]:
     """Every residual channel of the recording under ``model``.
 
     Args:
@@ -345,6 +348,7 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
         model: the model to diagnose (identified on this run or another).
         steps: step names to use (default: the four identification steps and the lane change when
             recorded).
+        lane_change: the lane change's coordinates that become torque channels.
     Returns:
         Torque channels of every step, kinematic channels of the steering steps and rolling channels
         of ``ROLLING_STEPS``.
@@ -356,7 +360,7 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
     for step in wanted:
         mask = signals.step == step
         ctx = step_context(signals.select(mask), sheet, model.p, pose[mask])
-        coordinates = EXCITED.get(step, LANE_CHANGE_COORDINATES)
+        coordinates = EXCITED.get(step, lane_change)
         out += _torque_channels(ctx, coordinates, model)
         if ctx.k == 1:
             side = MODE_COORDINATES[1].index(coordinates[0])

@@ -31,12 +31,13 @@ from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_run,
                                read_json, read_lifted)
+from qomni.ident.campaign import VALIDATION_STEP
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
 from . import fit as fitting
 from . import where as where_
-from .channels import ChannelData, channels
+from .channels import LANE_CHANGE_STEERING, ChannelData, channels
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
@@ -330,6 +331,30 @@ def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
 
 
+def _lane_change_steering(signals, sheet, model: IdentificationResult) -> list[ChannelData]:
+    """The lane change's steering channel (``channels.LANE_CHANGE_STEERING``), [] where the run has no
+    lane change."""
+    if VALIDATION_STEP not in signals.steps():
+        return []
+    return channels(signals, sheet, model, steps=[VALIDATION_STEP], lane_change=LANE_CHANGE_STEERING)
+
+
+def _steering_rule_rows(data: list[ChannelData], reference: list[ChannelData], lag: int, prior: bool,
+                        measured, ref_measured) -> tuple:
+    """(data problem, reference problem or None) of the lane change's steering channel, every row a fit
+    row, the reference weighted as the data (its paired channel holds no residual of its own); (None,
+    None) without that channel."""
+    if not data:
+        return None, None
+    rows, _ = make_problem(data, lag, data, base_prior=prior, measured=measured)
+    if not reference:
+        return rows, None
+    weights = {c.name: w for c, w in zip(rows.channels, rows.weights)}
+    ref_rows, _ = make_problem(reference, lag, reference, base_prior=prior, measured=ref_measured,
+                               weights_of=weights)
+    return rows, ref_rows
+
+
 def _load_run(run_dir, model: IdentificationResult):
     """A run's signals with the torque timing of ``model`` (its torque lag applied, as in its fit)."""
     signals, sheet, meta = load_run(run_dir)
@@ -380,6 +405,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     levels: dict = {}
     ref_problem = ref_plain = None
     fit_chans, paired_names = chans, []
+    steer, steer_ref = _lane_change_steering(signals, sheet, model), []
+    ref_measured = None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
         r_signals, r_sheet, r_meta = _load_run(reference_dir, model)
         ref = channels(r_signals, r_sheet, model)
@@ -387,9 +414,11 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
         ref_plain, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
         ref_problem = ref_plain
+        steer_ref = _lane_change_steering(r_signals, r_sheet, model)
         if hold is None and paired_runs(meta, r_meta, sheet.drive.cycle_time):
             fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time)
             paired_names = [c.name for c in fit_chans if c.paired is not None]
+            steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time)
     fp, hp = make_problem(fit_chans, lag, hold, base_prior=prior, measured=measured)
     if paired_names:
         own_weights = {c.name: w for c, w in zip(fp.channels, fp.weights) if c.paired is not None}
@@ -404,7 +433,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     all_rows = fp if hold is not None else make_problem(fit_chans, lag, fit_chans, base_prior=prior,
                                                         measured=measured)[0]
     rows = RuleRows(all_rows, ref_problem, model, lag, cache,
-                    None if on_lifted_wheels is None else on_lifted_wheels.wheels)
+                    None if on_lifted_wheels is None else on_lifted_wheels.wheels,
+                    *_steering_rule_rows(steer, steer_ref, lag, prior, measured, ref_measured))
     for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
         resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)

@@ -204,6 +204,60 @@ def test_friction_in_both_joints_is_named_where_the_steering_steps_need_more_tha
     assert wheels.significant and not both.significant
 
 
+def test_the_lane_change_places_friction_in_the_steering_joints_beside_the_wheels():
+    """Where a lane change was recorded, its steering channel (steering turning while the wheels roll at
+    speed) decides whether the steering joints have friction beside the wheel joints, not the steering
+    steps' both-joints fit: there a wheel-joint peak shows stronger than its column and the fit hands the
+    excess to the steering joints. The lane change's Stribeck velocity is profiled over the grid, so its
+    bar is 5 % shared over the grid's points."""
+    from scipy import stats
+
+    from qomni.diagnosis.hypotheses.stribeck import LANE_CHANGE_STEERING_Z, STRIBECK_VELOCITIES, \
+        WHEEL_FRICTION_Z, tell_friction_joints_apart
+    assert LANE_CHANGE_STEERING_Z == pytest.approx(stats.norm.isf(0.05 / len(STRIBECK_VELOCITIES)))
+    z_w = WHEEL_FRICTION_Z + 1.0
+    asked = []
+
+    def lane_change(peak, at=STRIBECK_VELOCITIES[-1]):
+        """z = ``peak`` at the Stribeck velocity ``at``, 0 elsewhere on the grid."""
+        def steered_z(v_s):
+            asked.append(v_s)
+            return None if peak is None else (peak if v_s == at else 0.0)
+        return steered_z
+
+    # the steering steps ask for steering-joint friction (z = 4), the lane change shows none: wheels
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w, lane_change(0.3))
+    assert wheels.significant and not steering.significant and not both.significant
+    assert "the lane change" in both.notes[0] and "not named" in both.notes[0]
+    assert sorted(asked) == sorted(STRIBECK_VELOCITIES)      # profiled over the whole grid
+    # above 1.645 but not above the grid's shared bar: still the wheels
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w,
+                               lane_change(LANE_CHANGE_STEERING_Z - 0.1))
+    assert wheels.significant and not both.significant
+    # the lane change shows it at some grid velocity although the steering steps' coefficient is at the
+    # reference's level: both
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 0.45], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w,
+                               lane_change(LANE_CHANGE_STEERING_Z + 0.5, at=STRIBECK_VELOCITIES[1]))
+    assert both.significant and not wheels.significant and not steering.significant
+    assert "the lane change" in both.notes[0]
+    # the lane change cannot move the wheels into the verdict: without the unsteered steps' z, steering
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: WHEEL_FRICTION_Z - 0.5, lane_change(5.0))
+    assert steering.significant and not wheels.significant and not both.significant
+    # no level to fit in the lane change at any grid velocity: the both-joints fit decides
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                              _both([1.0, 1.2], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w, lane_change(None))
+    assert both.significant and "the steering steps" in both.notes[0]
+
+
 def test_a_further_effect_is_tested_at_the_first_rounds_level_shared_over_the_hypotheses_left():
     from qomni.diagnosis.fit import ALPHA, alpha_more
     assert alpha_more(16) == pytest.approx(ALPHA / 16)

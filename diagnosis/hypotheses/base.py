@@ -78,8 +78,11 @@ class Hypothesis:
 class RuleRows:
     """What a hypothesis' ``resolve`` rule may fit on: the diagnosed run with every row a fit row
     (``all_rows``), the reference run's problem or None, the model, the correlation lag (rows) and the
-    fit cache (:mod:`qomni.diagnosis.fit`); and the diagnosed run's lifted-wheel measurement
-    (:attr:`qomni.ident.rundir.LiftedMeasurement.wheels`) or None."""
+    fit cache (:mod:`qomni.diagnosis.fit`); the diagnosed run's lifted-wheel measurement
+    (:attr:`qomni.ident.rundir.LiftedMeasurement.wheels`) or None; and the lane change's steering channel
+    (:data:`qomni.diagnosis.channels.LANE_CHANGE_STEERING`, not a fitted channel of the diagnosis) of the
+    diagnosed run and of the reference run, every row a fit row and paired as the torque channels are, or
+    None where the run has no lane change."""
 
     all_rows: object
     reference: object | None
@@ -87,6 +90,8 @@ class RuleRows:
     lag: int
     cache: dict
     lifted_wheels: dict | None = None
+    steering: object | None = None
+    steering_reference: object | None = None
 
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from qomni.conventions import EPSILON as EPS_SIGN
 
@@ -73,11 +74,17 @@ def _stribeck_both_columns(ch: ChannelData, v_s):
 #: whose significance the steering steps' fit rows established.
 WHEEL_FRICTION_Z = 1.645
 #: One-sided z (5 %) the steering joints' coefficient of the both-joints fit must reach beyond the
-#: reference run's level for friction in both joints to be named (:func:`_in_both_joints`).
+#: reference run's level for friction in both joints to be named in a run without a lane change
+#: (:func:`_in_both_joints`).
 STEERING_BEYOND_WHEELS_Z = 1.645
+#: One-sided z the steering joints' Stribeck level in the lane change's steering channel must reach beyond
+#: the reference run's level there, at the Stribeck velocity of the grid where it is largest, for friction
+#: in both joints to be named: 5 % shared over the grid's points (Bonferroni), as the velocity is profiled
+#: on the same rows.
+LANE_CHANGE_STEERING_Z = float(stats.norm.isf(0.05 / len(STRIBECK_VELOCITIES)))
 
 
-def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
+def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None) -> None:
     """Decide between the two Stribeck variants where they differ.
 
     In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
@@ -94,9 +101,11 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
     with that test's significance. When it does not confirm, the wheel variant stays.
 
     Friction in both joints at once: where the unsteered steps place friction in the wheel joints
-    (``z`` at the bar) and the both-joints variant's fit, whose wheel coefficient those steps hold,
-    still needs a steering-joint coefficient beyond the reference run's in the steering steps, the
-    both-joints variant is named instead (:func:`_in_both_joints`). It is never named by its own test."""
+    (``z`` at the bar) and the lane change, whose steering turns while the wheels roll at speed, places
+    friction in the steering joints as well (``steered_z(v_s)``: the steering variant's level in the lane
+    change's steering channel beyond the reference run's), the both-joints variant is named instead
+    (:func:`_in_both_joints`). It is never named by its own test. ``steered_z`` None (or None at v_s): the
+    run has no lane change, and the both-joints fit's steering coefficient decides."""
     by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
     wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
     both = by_variant.get("joints=both")
@@ -109,28 +118,42 @@ def tell_friction_joints_apart(candidates: list, unsteered_z) -> None:
         return
     _wheels_or_steering(wheels, steering, z)
     if both is not None and z >= WHEEL_FRICTION_Z and (wheels.significant or steering.significant):
-        _in_both_joints(both, wheels, steering, z)
+        _in_both_joints(both, wheels, steering, z, None if steered_z is None else _profiled(steered_z))
 
 
-def _in_both_joints(both, wheels, steering, z: float) -> None:
+def _profiled(steered_z) -> float | None:
+    """The largest z of ``steered_z`` over the Stribeck velocity grid, None where it has none."""
+    zs = [z for z in map(steered_z, STRIBECK_VELOCITIES) if z is not None]
+    return max(zs) if zs else None
+
+
+def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | None = None) -> None:
     """Name the both-joints variant in place of the single-joint one the placement chose, when the
-    steering joints' coefficient of the both-joints fit exceeds the reference run's level by
-    STEERING_BEYOND_WHEELS_Z: the wheel joints are placed by the steps without steering motion (``z``),
-    and the steering steps need more low-speed friction than those wheel joints give them."""
+    steering joints' level in the lane change (``z_lane_change``, at the grid's Stribeck velocity where it
+    is largest) exceeds the reference run's level there by LANE_CHANGE_STEERING_Z: the wheel joints are
+    placed by the steps without steering motion (``z``), the steering joints by the one step whose steering
+    turns while the wheels roll at speed. The steering steps cannot place it: there the two columns are
+    nearly collinear, and a wheel-joint peak shows stronger than its column (the slowly rolling steered
+    wheels stick and slip), so the both-joints fit hands the excess to the steering joints. Without a lane
+    change (``z_lane_change`` None) the both-joints fit's steering coefficient beyond the reference run's
+    decides."""
     from ..fit import coefficient_z, present  # the fitting machinery imports this package: import at use
 
-    # the steering coefficient (the fit's last) beyond the reference run's: what the steering steps need
-    # beyond the wheel joints' level, which the steps without steering motion hold in the same fit
-    z_s = coefficient_z(both.fit, -1)
-    if z_s < STEERING_BEYOND_WHEELS_Z or not both.physical or not present(both):
-        both.notes.append(f"the steering steps need no steering-joint friction beyond the wheel joints' "
-                          f"(z = {z_s:.1f} < {STEERING_BEYOND_WHEELS_Z}): not named")
+    if z_lane_change is None:
+        # the steering coefficient (the fit's last) beyond the reference run's: what the steering steps
+        # need beyond the wheel joints' level, which the steps without steering motion hold in the same fit
+        z_s, bar, where = coefficient_z(both.fit, -1), STEERING_BEYOND_WHEELS_Z, "the steering steps"
+    else:
+        z_s, bar, where = z_lane_change, LANE_CHANGE_STEERING_Z, "the lane change"
+    if z_s < bar or not both.physical or not present(both):
+        both.notes.append(f"no steering-joint friction beyond the reference run's in {where} "
+                          f"(z = {z_s:.1f} < {bar:.2f}): not named")
         return
     chosen = wheels if wheels.significant else steering
     both.significant = True
     both.notes.append(f"the wheel joints' level in the steps without steering motion exceeds the reference "
-                      f"run's by z = {z:.1f}, and the steering steps need steering-joint friction beyond it "
-                      f"(z = {z_s:.1f}); steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
+                      f"run's by z = {z:.1f}, and the steering joints' level in {where} exceeds it by "
+                      f"z = {z_s:.1f}; steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
                       f"significance from the {chosen.hypothesis.variant} variant's test "
                       f"(p = {chosen.p_value:.1e})")
     for single in (wheels, steering):
@@ -195,11 +218,41 @@ def unsteered_wheel_z(all_rows, ref_problem, model, lag: int, cache: dict):
     return z
 
 
+def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, cache: dict):
+    """``v_s ↦ z`` of the steering joints' Stribeck level in the lane change's steering channel beyond
+    the reference run's level there (beyond 0 without a reference run); None without that channel.
+
+    In the lane change (mode 2) the steering turns and reverses while the chassis drives: wherever the
+    steering slows below 0.05 rad/s, away from the step's first and last second, the wheels roll at
+    0.5 rad/s or more (an ideal full campaign), 2.5× the largest Stribeck velocity of the realistic range,
+    so a low-speed peak there is the steering joints'.
+    On the full campaigns of draw 6151 its largest z over the grid stayed within −0.4…0.9 in all 6
+    wheel-joint cases and reached 3.0–4.7 in all 6 steering- and both-joint cases whose peak is wider
+    than 0.025 rad/s; of the 6 narrower ones (0.011–0.021 rad/s), which the lane change's reversals cross
+    within a few samples, it reached 2.8 and 3.6 in 2."""
+    from .. import fit as fitting           # the fitting machinery imports this package: import at use
+
+    if steering_rows is None:
+        return None
+
+    def z(v_s):
+        ref = None if steering_reference is None else fitting.solve(steering_reference, model,
+                                                                    STRIBECK_STEERING, v_s, lag, cache)
+        return fitting.level_z(steering_rows, model, STRIBECK_STEERING, v_s, lag, cache,
+                               None if ref is None else ref.theta)
+
+    return z
+
+
 def resolve_joints(candidates: list, rows: RuleRows) -> None:
     """The Stribeck variants' rule (``Hypothesis.resolve``): :func:`tell_friction_joints_apart` with the
-    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_z`)."""
-    tell_friction_joints_apart(candidates, unsteered_wheel_z(rows.all_rows, rows.reference, rows.model,
-                                                             rows.lag, rows.cache))
+    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_z`) and the
+    steering variant's in the lane change (:func:`lane_change_steering_z`)."""
+    tell_friction_joints_apart(candidates,
+                               unsteered_wheel_z(rows.all_rows, rows.reference, rows.model, rows.lag,
+                                                 rows.cache),
+                               lane_change_steering_z(rows.steering, rows.steering_reference, rows.model,
+                                                      rows.lag, rows.cache))
 
 
 STRIBECK_WHEELS = Hypothesis(
