@@ -145,15 +145,18 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
         z_s, bar, where = coefficient_z(both.fit, -1), STEERING_BEYOND_WHEELS_Z, "the steering steps"
     else:
         z_s, bar, where = z_lane_change, LANE_CHANGE_STEERING_Z, "the lane change"
-    if z_s < bar or not both.physical or not present(both):
+    if z_s < bar:
         both.notes.append(f"no steering-joint friction beyond the reference run's in {where} "
                           f"(z = {z_s:.1f} < {bar:.2f}): not named")
+        return
+    if not both.physical or not present(both):
+        both.notes.append("the both-joints fit is not physical or its level not there: not named")
         return
     chosen = wheels if wheels.significant else steering
     both.significant = True
     both.notes.append(f"the wheel joints' level in the steps without steering motion exceeds the reference "
-                      f"run's by z = {z:.1f}, and the steering joints' level in {where} exceeds it by "
-                      f"z = {z_s:.1f}; steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
+                      f"run's by z = {z:.1f}, and the steering joints' level in {where} exceeds the reference "
+                      f"run's by z = {z_s:.1f}; steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
                       f"significance from the {chosen.hypothesis.variant} variant's test "
                       f"(p = {chosen.p_value:.1e})")
     for single in (wheels, steering):
