@@ -37,7 +37,7 @@ from qomni.ident.torque_timing import model_lag, shift_torque
 from . import evaluation
 from . import fit as fitting
 from . import where as where_
-from .channels import LANE_CHANGE_STEERING, ChannelData, channels
+from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
@@ -331,12 +331,12 @@ def _removed_rms(evaluation: evaluation.Evaluation, channel: str) -> float:
     return next((c.removed_rms for c in evaluation.channels if c.name == channel), 0.0)
 
 
-def _lane_change_steering(signals, sheet, model: IdentificationResult) -> list[ChannelData]:
-    """The lane change's steering channel (``channels.LANE_CHANGE_STEERING``), [] where the run has no
-    lane change."""
-    if VALIDATION_STEP not in signals.steps():
-        return []
-    return channels(signals, sheet, model, steps=[VALIDATION_STEP], lane_change=LANE_CHANGE_STEERING)
+def _channels_and_steering(signals, sheet, model: IdentificationResult) -> tuple[list, list]:
+    """(the diagnosis' channels, the lane change's steering channel ``channels.LANE_CHANGE_STEERING``
+    that only the Stribeck placement uses, [] where the run has no lane change), from one pass."""
+    both = channels(signals, sheet, model, lane_change=LANE_CHANGE_COORDINATES + LANE_CHANGE_STEERING)
+    steering = {f"{VALIDATION_STEP}/{c}" for c in LANE_CHANGE_STEERING}
+    return [c for c in both if c.name not in steering], [c for c in both if c.name in steering]
 
 
 def _steering_rule_rows(data: list[ChannelData], reference: list[ChannelData], lag: int, prior: bool,
@@ -389,7 +389,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     signals, sheet, meta = _load_run(data_dir, model)
     data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps()}
     lag = correlation_lag(sheet.drive.cycle_time)
-    chans = channels(signals, sheet, model)
+    chans, steer = _channels_and_steering(signals, sheet, model)
     hold = None
     if holdout_dir is not None:
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
@@ -405,16 +405,14 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     levels: dict = {}
     ref_problem = ref_plain = None
     fit_chans, paired_names = chans, []
-    steer, steer_ref = _lane_change_steering(signals, sheet, model), []
-    ref_measured = None
+    steer_ref, ref_measured = [], None
     if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
         r_signals, r_sheet, r_meta = _load_run(reference_dir, model)
-        ref = channels(r_signals, r_sheet, model)
+        ref, steer_ref = _channels_and_steering(r_signals, r_sheet, model)
         # the twin's wheels have the model's friction, lifted or not, measured as precisely as the data's
         ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
         ref_plain, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
         ref_problem = ref_plain
-        steer_ref = _lane_change_steering(r_signals, r_sheet, model)
         if hold is None and paired_runs(meta, r_meta, sheet.drive.cycle_time):
             fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time)
             paired_names = [c.name for c in fit_chans if c.paired is not None]

@@ -205,20 +205,23 @@ def unsteered_wheel_z(all_rows, ref_problem, model, lag: int, cache: dict):
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
     the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
-    from .. import fit as fitting           # the fitting machinery imports this package: import at use
-    from ..problem import restrict
+    from ..problem import restrict          # the fitting machinery imports this package: import at use
 
     def unsteered(ch):
         return ch.context.k != 1
 
-    def z(v_s):
-        # the reference run's level at this v_s only (reference_levels would fit the whole grid)
-        ref = None if ref_problem is None else fitting.solve(restrict(ref_problem, unsteered), model,
-                                                             STRIBECK_WHEELS, v_s, lag, cache)
-        return fitting.level_z(restrict(all_rows, unsteered), model, STRIBECK_WHEELS, v_s, lag, cache,
-                               None if ref is None else ref.theta)
+    rows = restrict(all_rows, unsteered)
+    reference = None if ref_problem is None else restrict(ref_problem, unsteered)
+    return lambda v_s: _z_beyond_reference(rows, reference, model, STRIBECK_WHEELS, v_s, lag, cache)
 
-    return z
+
+def _z_beyond_reference(rows, reference, model, h, v_s, lag: int, cache: dict) -> float | None:
+    """z of ``h``'s level at ``v_s`` on ``rows`` beyond its level on the reference run's ``reference``
+    (fitted at this v_s only: reference_levels would fit the whole grid), beyond 0 without one."""
+    from .. import fit as fitting           # the fitting machinery imports this package: import at use
+
+    ref = None if reference is None else fitting.solve(reference, model, h, v_s, lag, cache)
+    return fitting.level_z(rows, model, h, v_s, lag, cache, None if ref is None else ref.theta)
 
 
 def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, cache: dict):
@@ -233,18 +236,10 @@ def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, c
     wheel-joint cases and reached 3.0–4.7 in all 6 steering- and both-joint cases whose peak is wider
     than 0.025 rad/s; of the 6 narrower ones (0.011–0.021 rad/s), which the lane change's reversals cross
     within a few samples, it reached 2.8 and 3.6 in 2."""
-    from .. import fit as fitting           # the fitting machinery imports this package: import at use
-
     if steering_rows is None:
         return None
-
-    def z(v_s):
-        ref = None if steering_reference is None else fitting.solve(steering_reference, model,
-                                                                    STRIBECK_STEERING, v_s, lag, cache)
-        return fitting.level_z(steering_rows, model, STRIBECK_STEERING, v_s, lag, cache,
-                               None if ref is None else ref.theta)
-
-    return z
+    return lambda v_s: _z_beyond_reference(steering_rows, steering_reference, model, STRIBECK_STEERING,
+                                           v_s, lag, cache)
 
 
 def resolve_joints(candidates: list, rows: RuleRows) -> None:
