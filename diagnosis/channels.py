@@ -32,7 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from qomni.ident import filtering, kinematics, odometry
-from qomni.ident.campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
+from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STEP
 from qomni.datasheet import DataSheet
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, StepSignals,
@@ -47,6 +47,9 @@ LANE_CHANGE_COORDINATES = ("x_ch",)
 #: The lane change's steering coordinate: the one step whose steering turns while the wheels roll at
 #: speed, so that a low-speed friction peak there is the steering joints' (``hypotheses.stribeck``).
 LANE_CHANGE_STEERING = ("alpha_v",)
+#: Coordinates of the arcs that become torque channels: their steering is held (below the stiction
+#: threshold throughout), so only the path coordinate carries a torque.
+ARC_COORDINATES = ("x_ch",)
 #: Rows cut at both ends of every step: zero-phase filter edge effects (``filtering.padlen``).
 EDGE_ROWS = 60
 #: A drive at this fraction of its ``max_torque`` is at its traction limit; rows within
@@ -346,8 +349,8 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
         signals: the run's recorded signals.
         sheet: its data sheet.
         model: the model to diagnose (identified on this run or another).
-        steps: step names to use (default: the four identification steps and the lane change when
-            recorded).
+        steps: step names to use (default: the four identification steps, the lane change and the arcs,
+            each where recorded).
         lane_change: the lane change's coordinates that become torque channels.
     Returns:
         Torque channels of every step, kinematic channels of the steering steps and rolling channels
@@ -355,12 +358,12 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
     """
     pose = run_pose(signals, sheet)
     recorded = signals.steps()
-    wanted = steps or [s for s in (*IDENTIFICATION_STEPS, VALIDATION_STEP) if s in recorded]
+    wanted = steps or [s for s in (*IDENTIFICATION_STEPS, VALIDATION_STEP, *ARC_STEPS) if s in recorded]
     out: list[ChannelData] = []
     for step in wanted:
         mask = signals.step == step
         ctx = step_context(signals.select(mask), sheet, model.p, pose[mask])
-        coordinates = EXCITED.get(step, lane_change)
+        coordinates = EXCITED.get(step) or (ARC_COORDINATES if step in ARC_STEPS else lane_change)
         out += _torque_channels(ctx, coordinates, model)
         if ctx.k == 1:
             side = MODE_COORDINATES[1].index(coordinates[0])

@@ -185,10 +185,11 @@ class PlantVehicle:
 
 
 def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, steps: tuple[str, ...] | None = None,
-                             run_dir: str | os.PathLike | None = None) -> dict[str, dict[str, float]]:
+                             run_dir: str | os.PathLike | None = None,
+                             start_values: dict | None = None) -> dict[str, dict[str, float]]:
     """Closed-loop co-simulation: the campaign controller (:class:`ident.controller.StepController`,
-    segments of :class:`ident.campaign.Campaign`: alignments, rests, the four identification steps and
-    the lane change) drives the plant FMU through :class:`PlantVehicle`.
+    segments of :class:`ident.campaign.Campaign`: alignments, rests, the four identification steps, the
+    lane change and the arcs) drives the plant FMU through :class:`PlantVehicle`.
 
     Args:
         path: the plant ``.fmu``; sheet: the data sheet the controller uses (nominal parameters);
@@ -196,11 +197,12 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
         steps: names of the segments to run (default all); alignment and rest segments always run;
         run_dir: where :class:`ident.campaign.Campaign` may create its directory (nothing is recorded;
             default a temporary directory).
+        start_values: the plant's start values (e.g. ``mode_tol``, docs/fmu.md).
     Returns:
-        {segment name (``steer_left``, ..., ``lane_change``): tracking errors}: ``alpha_rms``, ``alpha_max``
+        {segment name (``steer_left``, ..., ``arc_right``): tracking errors}: ``alpha_rms``, ``alpha_max``
         (rad, steering angles against the reference; mode 2 with alpha_v: alpha = f_ICR(alpha_v_ref)),
-        and for chassis steps ``chassis_rms``, ``chassis_max`` (m or rad: x_ch for straight and lane
-        change, as the integral of the plant's x_ch_dot; gamma_ch for rotation), ``cycles`` and
+        and for chassis steps ``chassis_rms``, ``chassis_max`` (m or rad: x_ch for straight, lane
+        change and the arcs, as the integral of the plant's x_ch_dot; gamma_ch for rotation), ``cycles`` and
         ``mode_fraction`` (share of the cycles in which the plant's engaged mode k was the step's mode).
     """
     from qomni.ident import kinematics
@@ -213,7 +215,7 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
         run_dir = tmp
     try:
         campaign = Campaign(sheet, Path(run_dir) / "campaign", settings)
-        vehicle = PlantVehicle(path, sheet.drive.cycle_time)
+        vehicle = PlantVehicle(path, sheet.drive.cycle_time, start_values)
         ts = sheet.drive.cycle_time
         results: dict[str, dict[str, float]] = {}
         measurement = vehicle.exchange(np.zeros(4))
@@ -229,7 +231,8 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
                 alpha_ref = np.stack([ref["alpha_l"][0], ref["alpha_r"][0]], axis=1)
             else:
                 alpha_ref = np.tile(vehicle.last["alpha"] if vehicle.last else np.zeros(2), (n, 1))
-            chassis_name = {"straight": "x_ch", "lane_change": "x_ch", "rotation": "gamma_ch"}.get(seg.name)
+            chassis_name = {"straight": "x_ch", "lane_change": "x_ch", "arc_left": "x_ch", "arc_right": "x_ch",
+                            "rotation": "gamma_ch"}.get(seg.name)
             alpha, chassis, k = np.zeros((n, 2)), np.zeros(n), np.zeros(n, dtype=int)
             s, start_gamma = 0.0, None
             for j in range(n):

@@ -2,7 +2,9 @@
 executed through a vehicle link (the CANopen client, or anything with the same ``exchange``/``stop``).
 
 Order: steer left, steer right, straight, rotation (the paper's order: straight before rotation so the
-direction of the straight motion is known), then the lane change in mode 2 that the fit never sees. The
+direction of the straight motion is known), then the lane change in mode 2 that the fit never sees, then
+two arcs in mode 2 at held steering angles, one to each side (for the gap diagnosis; the fit never sees
+them either). The
 wheels are aligned at rest between steps (mode 1). Everything is recorded cycle by cycle into the run
 directory; if anything fails the wheels get torque 0, the drives are disabled, and what was recorded so
 far stays on disk.
@@ -28,7 +30,14 @@ from .rundir import METADATA, SIGNALS, write_json
 
 IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
+#: Mode 2 at a held α_v, yawing the chassis about a point beside it, to the left and to the right
+#: (``excitation.arc_excitation``): the diagnosis' view of a yaw inertia that depends on the steering
+#: angles. Neither fitted nor validated.
+ARC_STEPS = ("arc_left", "arc_right")
 
+
+#: rad: a steering angle this close to the stops aborts the campaign.
+STOP_MARGIN = 0.03
 
 #: Step name of the rows recorded while the steering loop was in a limit cycle, and of the recovery from it.
 LIMIT_CYCLE_STEP = "limit_cycle"
@@ -87,6 +96,13 @@ class CampaignSettings:
     # (docs/identification.md, Validation).
     lane_width: float = 0.25
     lane_changes: int = 2
+    # Each arc's length (0: none), the inner steering units' angle (rad; 0.32 rad inside the stops at
+    # π/2) and the path acceleration bound (m/s²); their yaw keeps the rotation's limits. The tighter the
+    # turn, the more the steering units' yaw inertia differs from mode 4's per newton of drive
+    # (docs/diagnosis.md, Where: the arcs).
+    arc_duration: float = 10.0
+    arc_inner_alpha: float = 1.25
+    arc_x_ddot_max: float = 1.6
     n_harmonics: int = 5
     steer_period: float = 4.0  # s, base period of the steering excitation (repeated over the step)
     chassis_period: float = 5.0  # s, base period of the straight and rotation excitation
@@ -94,25 +110,34 @@ class CampaignSettings:
 
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":
-        """A short campaign (≈ 30 s emulated) for tests and smoke runs."""
+        """A short campaign (≈ 46 s emulated) for tests and smoke runs."""
         short = dict(steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
                      lane_change_duration=8.0, align_duration=1.5, rest_duration=0.3,
                      alpha_dot_max=1.5, alpha_ddot_max=6.0, lane_distance=3.0, lane_width=0.1,
-                     n_harmonics=4)
+                     n_harmonics=4, arc_duration=4.0)
         short.update(overrides)
         return cls(**short)
 
 
 def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
-    """The four identification steps and the lane change, designed from ``settings``."""
+    """The four identification steps, the lane change and (``arc_duration`` > 0) the two arcs, designed
+    from ``settings``.
+
+    Raises:
+        ValueError: a step's limits cannot be met, or the arcs' inner units would stand within
+            :data:`STOP_MARGIN` of the steering stops.
+    """
     g, s = sheet.geometry, settings
+    if s.arc_duration > 0 and not s.arc_inner_alpha < g.steering_limit - STOP_MARGIN:
+        raise ValueError(f"arc_inner_alpha = {s.arc_inner_alpha} rad must stay below the steering stops "
+                         f"({g.steering_limit:.4g} rad) by more than {STOP_MARGIN} rad")
     common = dict(n_harmonics=s.n_harmonics)
     # A long step is several repetitions of a short base period: a single slow period would keep
     # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
     steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
                  alpha_ddot_max=s.alpha_ddot_max, periods=_periods(s.steer_duration, s.steer_period),
                  **common)
-    return [
+    steps = [
         excitation.steer_left_excitation(seed=s.seed + 1, **steer),
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),
         excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
@@ -130,6 +155,14 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
                                alpha_ddot_max=s.alpha_ddot_max, x_dot_max=s.x_dot_max,
                                x_ddot_max=s.x_ddot_max),
     ]
+    if s.arc_duration > 0:
+        steps += [excitation.arc_excitation(
+            l=g.l, b=g.b, side=side, inner_alpha=s.arc_inner_alpha, duration=s.arc_duration,
+            gamma_max=s.gamma_max,
+            gamma_dot_max=s.gamma_dot_max, gamma_ddot_max=s.gamma_ddot_max, x_ddot_max=s.arc_x_ddot_max,
+            periods=_periods(s.arc_duration, s.chassis_period), seed=s.seed + i, **common)
+            for i, side in ((5, 1), (6, -1))]
+    return steps
 
 
 def _periods(duration: float, base_period: float) -> int:
@@ -266,7 +299,7 @@ class Campaign:
         Raises:
             CampaignAborted: a steering angle near the stops."""
         ts = self.sheet.drive.cycle_time
-        limit = self.sheet.geometry.steering_limit - 0.03
+        limit = self.sheet.geometry.steering_limit - STOP_MARGIN
         total = self.total_cycles
         names = [seg.name for seg in self.segments]
         watched = names.index(IDENTIFICATION_STEPS[0]) + 1 if watch and IDENTIFICATION_STEPS[0] in names else 0
@@ -400,6 +433,7 @@ class Campaign:
             "occupied_rectangle": occupied_rectangle(self.steps, sheet),
             "identification_steps": list(IDENTIFICATION_STEPS),
             "validation_step": VALIDATION_STEP,
+            "arc_steps": [step.name for step in self.steps if step.name in ARC_STEPS],
             "segments": [],
         }
 

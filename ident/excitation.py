@@ -10,6 +10,10 @@ The campaign (section 6.2) runs four simple movements, in this order:
 Each excited coordinate is a rest-to-rest finite Fourier series designed by
 :func:`qomni.ident.fourier.design_fourier_trajectory` (the generic design lives in :mod:`qomni.ident.fourier`).
 
+After it the campaign drives two arcs (:func:`arc_excitation`), one to each side: mode 2 at a held virtual
+steering angle, the chassis yawing about an instantaneous centre beside it, a configuration no
+identification step yaws in.
+
 The validation movement (:func:`lane_change`) is a mode-2 lane change (by default of the campaign a
 double one, out and back): a symmetric sin² speed profile ẋ_ch(t) and S-shaped virtual steering angles
 α_v along the way; the amplitude is solved (brentq) so the chassis moves sideways by one lane width and
@@ -38,6 +42,8 @@ __all__ = [
     "rotation_excitation",
     "identification_campaign",
     "lane_change",
+    "arc_excitation",
+    "arc_alpha_v",
     "mode2_path",
     "occupied_rectangle",
     "ALPHA_MAX_DEFAULT",
@@ -59,7 +65,7 @@ class ExcitationStep:
     Attributes
     ----------
     name : str
-        ``"steer_left"``, ``"steer_right"``, ``"straight"``, ``"rotation"`` or ``"lane_change"``.
+        ``"steer_left"``, ``"steer_right"``, ``"straight"``, ``"rotation"``, ``"lane_change"``, ``"arc_left"`` or ``"arc_right"``.
     mode : int
         Motion mode k of (9) (1, 2 or 4).
     trajectories : Mapping[str, Trajectory]
@@ -210,6 +216,85 @@ def identification_campaign(
             kw.update(l=l, b=b)
         steps.append(g(duration=duration, seed=seed + i + 1, **kw))
     return steps
+
+
+def arc_alpha_v(l: float, b: float, inner_alpha: float) -> float:
+    """The arcs' |α_v|, rad, for the inner steering units at ``inner_alpha`` (rad, 0 < inner_alpha < π/2):
+    eq. (6)-(8), (l/2)/tan α_v = (l/2)/tan α_inner + b/2, the ICR at (l/2)/tan α_v beside the centre.
+
+    Raises:
+        ValueError: ``inner_alpha`` outside (0, π/2).
+    """
+    if not 0.0 < inner_alpha < math.pi / 2:
+        raise ValueError(f"inner_alpha must lie in (0, pi/2) rad, got {inner_alpha}")
+    return math.atan2(0.5 * l, 0.5 * l / math.tan(inner_alpha) + 0.5 * b)
+
+
+def arc_excitation(
+    *,
+    l: float,
+    b: float,
+    side: int,
+    inner_alpha: float = 1.25,
+    duration: float = 10.0,
+    gamma_max: float = 1.0,
+    gamma_dot_max: float = 0.8,
+    gamma_ddot_max: float = 3.0,
+    x_ddot_max: float = 1.6,
+    n_harmonics: int = 6,
+    seed: int = 5,
+    **kw,
+) -> ExcitationStep:
+    """Mode 2 at a held α_v = side·:func:`arc_alpha_v`, the inner steering units at ``inner_alpha``: x_ch(t)
+    excited, the chassis yawing by γ = κ·x_ch about the ICR at (0, 1/κ), κ = tan(α_v)/(l/2).
+
+    The yaw inertia of a mass carried by the steering units depends on the steering angles; the
+    identification steps yaw the chassis only in mode 4, so the lumped C_ch holds that inertia at mode 4's
+    angles. In an arc the inner units stand at arctan(l/b) turned the other way, their wheel centres
+    closer to the chassis centre the further they turn (docs/diagnosis.md, heavy steering units). A first moment of the chassis
+    mass across the driving direction (an off-centre payload) adds −2κ·s_y to the arc's path inertia:
+    it changes sign with the turning direction, the steering units' inertia does not, so the campaign
+    drives one arc to each side. The yaw motion is bounded by the rotation's limits through κ:
+    |x_ch| ≤ gamma_max/|κ|, |ẋ_ch| ≤ gamma_dot_max/|κ|, |ẍ_ch| ≤ min(gamma_ddot_max/|κ|, x_ddot_max).
+
+    Parameters
+    ----------
+    l, b : float
+        Steering-axis distances (m).
+    side : int
+        +1: turning left (ICR on the left, step ``"arc_left"``), −1: right (``"arc_right"``).
+    inner_alpha : float
+        |α| of the inner units (rad, below the stops at π/2).
+    duration : float
+        Length (s).
+    gamma_max, gamma_dot_max, gamma_ddot_max : float
+        Yaw limits (rad, rad/s, rad/s²); x_ddot_max (m/s²) caps the path acceleration.
+    n_harmonics, seed : int
+        Fourier design (as the straight step; ``kw`` goes to the design, e.g. ``periods``).
+
+    Returns
+    -------
+    ExcitationStep
+        mode 2, trajectory ``{"x_ch"}``, held α_v, α_l, α_r.
+
+    Raises
+    ------
+    ValueError
+        ``side`` is not ±1, or ``inner_alpha`` is outside (0, π/2).
+    """
+    if side not in (1, -1):
+        raise ValueError(f"side must be +1 (left) or -1 (right), got {side}")
+    alpha_v = side * arc_alpha_v(l, b, inner_alpha)
+    kappa = abs(math.tan(alpha_v)) / (0.5 * l)
+    tr = design_fourier_trajectory(
+        duration=duration, q_min=-gamma_max / kappa, q_max=gamma_max / kappa,
+        qd_max=gamma_dot_max / kappa, qdd_max=min(gamma_ddot_max / kappa, x_ddot_max),
+        n_harmonics=n_harmonics, seed=seed, **kw,
+    )
+    s, c = math.sin(alpha_v), math.cos(alpha_v)
+    alpha_l, alpha_r = math.atan2(l * s, l * c - b * s), math.atan2(l * s, l * c + b * s)
+    return ExcitationStep("arc_left" if side > 0 else "arc_right", 2, {"x_ch": tr},
+                          {"alpha_v": alpha_v, "alpha_l": alpha_l, "alpha_r": alpha_r})
 
 
 # --------------------------------------------------------------------------------------------

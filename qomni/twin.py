@@ -128,8 +128,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     data_dir, cache = Path(data_dir), Path(cache)
     meta = read_json(data_dir / METADATA)
     recorded = meta.get("settings", {})
-    # A run whose metadata does not name its number of lane changes drove a single one.
-    settings = CampaignSettings(**{"lane_changes": 1, **recorded})
+    settings = _settings_of(meta)
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
@@ -179,6 +178,21 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
         return (twin_description(consistent, sheet, f"{identification} (consistent estimator)"),
                 f"the data run re-identified with the consistent estimator (parameters held at 0: {held}); "
                 f"the model as identified is not physical: {exc}")
+
+
+def _settings_of(meta: dict):
+    """The campaign settings the data's run recorded (``metadata.json`` ``settings``). A run that does not
+    record its number of lane changes drove a single one, and one that does not record its arcs drove
+    none.
+
+    Raises:
+        TwinError: a recorded setting the campaign does not know, or one it refuses."""
+    from qomni.ident.campaign import CampaignSettings
+
+    try:
+        return CampaignSettings(**{"lane_changes": 1, "arc_duration": 0.0, **meta.get("settings", {})})
+    except TypeError as exc:
+        raise TwinError(f"metadata.json settings: {exc}") from exc
 
 
 def _controller_of(meta: dict):

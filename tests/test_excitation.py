@@ -144,6 +144,43 @@ def test_a_double_lane_change_returns_to_its_lane_and_steers_above_stiction():
         ex.lane_change(**kw, changes=0)
 
 
+@pytest.mark.parametrize("side", [1, -1])
+def test_an_arc_holds_the_mode_2_configuration_with_its_inner_units_at_the_given_angle(side):
+    from qomni.datasheet import DataSheet
+    from qomni.ident import kinematics
+
+    geometry = DataSheet.load().geometry
+    step = ex.arc_excitation(l=L, b=B, side=side, inner_alpha=1.25, duration=10.0, gamma_max=1.0,
+                             gamma_dot_max=0.8, gamma_ddot_max=3.0, x_ddot_max=1.6, n_harmonics=5,
+                             periods=2, seed=9)
+    assert step.name == ("arc_left" if side > 0 else "arc_right") and step.mode == 2
+    held = step.held
+    alpha = np.array([held["alpha_l"], held["alpha_r"]])
+    # on the ICR manifold (8), turning to ``side``, the inner unit at 1.25 rad
+    assert np.allclose(kinematics.f_icr(held["alpha_v"], geometry)[0], alpha, atol=1e-12)
+    assert np.sign(held["alpha_v"]) == side and max(abs(alpha)) == pytest.approx(1.25, abs=1e-12)
+    kappa = abs(math.tan(held["alpha_v"])) / (L / 2)
+    t, x, xd, xdd = _dense(step.trajectories["x_ch"])
+    assert abs(x[0]) < 1e-12 and abs(x[-1]) < 1e-9 and abs(xd[-1]) < 1e-9
+    assert np.max(np.abs(x)) * kappa <= 1.0 and np.max(np.abs(xd)) * kappa <= 0.8
+    assert np.max(np.abs(xdd)) <= 1.6 + 1e-9 and np.max(np.abs(xdd)) > 1.0   # the yaw bound, 3/κ, is wider
+    with pytest.raises(ValueError, match="side"):
+        ex.arc_excitation(l=L, b=B, side=0)
+    with pytest.raises(ValueError, match="inner_alpha"):
+        ex.arc_excitation(l=L, b=B, side=side, inner_alpha=math.pi / 2)
+
+
+def test_the_campaign_plans_its_arcs_inside_the_stops_or_not_at_all():
+    from qomni.datasheet import DataSheet
+    from qomni.ident.campaign import ARC_STEPS, CampaignSettings, plan
+
+    sheet = DataSheet.load()
+    assert [s.name for s in plan(sheet, CampaignSettings())][-2:] == list(ARC_STEPS)
+    assert not set(ARC_STEPS) & {s.name for s in plan(sheet, CampaignSettings(arc_duration=0.0))}
+    with pytest.raises(ValueError, match="arc_inner_alpha"):
+        plan(sheet, CampaignSettings(arc_inner_alpha=sheet.geometry.steering_limit - 0.01))
+
+
 def test_occupied_rectangle():
     length, width = ex.occupied_rectangle(np.array([0.0, 0.7, -1.1, 0.2]), L, B, A)
     assert np.isclose(length, L + 2.2) and np.isclose(width, math.hypot(L, B) + 2 * A)

@@ -56,6 +56,18 @@ def test_the_twin_repeats_the_data_runs_controller_with_its_recorded_steering_ba
 
 
 @pytest.mark.slow
+def test_the_twin_repeats_the_data_runs_campaign_settings_and_drives_no_arcs_a_run_did_not_record():
+    from qomni.ident.campaign import CampaignSettings
+    from qomni.twin import TwinError, _settings_of
+
+    assert _settings_of({"settings": {"seed": 4, "arc_duration": 10.0}}).arc_duration == 10.0
+    older = _settings_of({"settings": {"seed": 4}})
+    assert older.arc_duration == 0.0 and older.lane_changes == 1 and older.seed == 4
+    assert _settings_of({"settings": {**CampaignSettings().__dict__}}) == CampaignSettings()
+    with pytest.raises(TwinError, match="settings"):
+        _settings_of({"settings": {"retired_setting": 1}})
+
+
 def test_a_model_that_is_not_physical_gets_the_twin_of_its_runs_consistent_estimate(tmp_path):
     """A model identified on the data run with a negative friction (as a long actuator delay gives) is not a
     vehicle: the twin is made from the same run re-identified with the consistent estimator, and says so.

@@ -33,7 +33,7 @@ def campaign(
     vehicle: Optional[Path] = typer.Option(None, help="Vehicle description TOML (emulator) / data sheet."),
     datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
     seed: int = typer.Option(0, min=0, help="Seed of the embedded emulator's noise."),
-    quick: bool = typer.Option(False, help="Short campaign (≈ 35 s emulated) for smoke tests."),
+    quick: bool = typer.Option(False, help="Short campaign (≈ 46 s emulated) for smoke tests."),
     single_axis: Optional[bool] = typer.Option(
         None, "--single-axis/--no-single-axis",
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
@@ -59,7 +59,7 @@ def campaign(
              "identification step has ended, stop, probe the dead time and start the campaign again at the "
              "bandwidth it gives (a vehicle that never reaches the limit records the same either way)."),
 ):
-    """Run the four-step campaign and the lane change, then identify and validate."""
+    """Run the four-step campaign, the lane change and the two arcs, then identify and validate."""
     from qomni.hil.master.client import CommunicationError
     from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
     from qomni.ident.controller import ControllerSettings
