@@ -231,8 +231,8 @@ def run_campaign_closed_loop(path: str | os.PathLike, sheet, settings=None, step
                 alpha_ref = np.stack([ref["alpha_l"][0], ref["alpha_r"][0]], axis=1)
             else:
                 alpha_ref = np.tile(vehicle.last["alpha"] if vehicle.last else np.zeros(2), (n, 1))
-            chassis_name = {"straight": "x_ch", "lane_change": "x_ch", "arc_left": "x_ch", "arc_right": "x_ch",
-                            "rotation": "gamma_ch"}.get(seg.name)
+            # the chassis coordinate by the step's mode (mode 2's path, mode 4's yaw), not by its name
+            chassis_name = {2: "x_ch", 4: "gamma_ch"}.get(seg.mode) if seg.name not in ("align", "rest") else None
             alpha, chassis, k = np.zeros((n, 2)), np.zeros(n), np.zeros(n, dtype=int)
             s, start_gamma = 0.0, None
             for j in range(n):

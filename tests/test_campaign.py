@@ -18,7 +18,7 @@ from qomni.ident import odometry
 from qomni.ident.campaign import Campaign, CampaignAborted, CampaignSettings
 from qomni.datasheet import DataSheet
 from qomni.ident.identify import identify_run, validate_run
-from qomni.ident.recording import read_signals
+from qomni.ident.recording import COLUMNS, read_signals
 from qomni.cli import app
 from qomni.embedded import LOCKSTEP_SYNC_TIMEOUT
 
@@ -108,14 +108,17 @@ def test_odometry_pose_follows_the_emulator_after_each_step(quick_run):
 
 
 def _off_torque_grid(fields: list[str], grid: float) -> list[str]:
-    """The recorded fields without the torque actuals (columns 12-15 after the time stamp) that lie on
-    their quantisation grid: a measured torque on that grid says nothing of the truth."""
+    """The recorded fields after the time stamp without the torque actuals that lie on their quantisation
+    grid: a measured torque on that grid says nothing of the truth."""
+    names = [f"{n} [{u}]" for n, u in COLUMNS][1:]
+    actual = {i for i, n in enumerate(names) if n.startswith("motor_torque_") and "cmd" not in n}
+
     def on_grid(token: str) -> bool:
         try:
             return abs(float(token) / grid - round(float(token) / grid)) < 1e-6
         except ValueError:
             return False
-    return [f for i, f in enumerate(fields) if not (12 <= i <= 15 and on_grid(f))]
+    return [f for i, f in enumerate(fields) if not (i in actual and on_grid(f))]
 
 
 def test_run_directory_holds_the_recording_and_no_truth(quick_run):
