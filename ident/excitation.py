@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike
 from scipy import integrate, optimize
 
 from .fourier import AnalyticTrajectory, Trajectory, design_fourier_trajectory
+from .kinematics import f_icr_lb
 
 __all__ = [
     "ExcitationStep",
@@ -291,8 +292,7 @@ def arc_excitation(
         qd_max=gamma_dot_max / kappa, qdd_max=min(gamma_ddot_max / kappa, x_ddot_max),
         n_harmonics=n_harmonics, seed=seed, **kw,
     )
-    s, c = math.sin(alpha_v), math.cos(alpha_v)
-    alpha_l, alpha_r = math.atan2(l * s, l * c - b * s), math.atan2(l * s, l * c + b * s)
+    alpha_l, alpha_r = (float(a) for a in f_icr_lb(alpha_v, l, b)[0])
     return ExcitationStep("arc_left" if side > 0 else "arc_right", 2, {"x_ch": tr},
                           {"alpha_v": alpha_v, "alpha_l": alpha_l, "alpha_r": alpha_r})
 

@@ -148,9 +148,15 @@ def f_icr(alpha_v, geometry) -> np.ndarray:
         ValueError: |alpha_v| > arctan(l/b) (an inner wheel would pass its stop at pi/2).
     """
     l, b, _, _ = _geometry(geometry)
+    return f_icr_lb(alpha_v, l, b)
+
+
+def f_icr_lb(alpha_v, l: float, b: float) -> np.ndarray:
+    """:func:`f_icr` from the steering-axis distances ``l``, ``b`` (m) alone; shapes, units and errors as there."""
     av = np.atleast_1d(np.asarray(alpha_v, dtype=float)).reshape(-1)
-    if np.any(~(np.abs(av) <= alpha_v_max(geometry) + 1e-12)):
-        raise ValueError(f"alpha_v must satisfy |alpha_v| <= arctan(l/b) = {alpha_v_max(geometry):.6f} rad, "
+    av_max = np.arctan2(l, b)
+    if np.any(~(np.abs(av) <= av_max + 1e-12)):
+        raise ValueError(f"alpha_v must satisfy |alpha_v| <= arctan(l/b) = {av_max:.6f} rad, "
                          f"got max |alpha_v| = {np.nanmax(np.abs(av)) if av.size else 0}")
     s, c = np.sin(av), np.cos(av)
     return np.stack([np.arctan2(l * s, l * c - b * s), np.arctan2(l * s, l * c + b * s)], axis=-1)
@@ -315,6 +321,6 @@ def sdot_from_qdot(k: int, alpha, qd, geometry, alpha_v=None) -> np.ndarray:
 
 __all__ = [
     "Geometry", "MODES", "N_GENERALIZED", "DEFAULT_MODE_TOL", "constraint_matrix", "constraint_residual",
-    "alpha_v_max", "f_icr", "f_icr_prime", "alpha_v_from_alpha", "icr_residual", "mode_alpha",
+    "alpha_v_max", "f_icr", "f_icr_lb", "f_icr_prime", "alpha_v_from_alpha", "icr_residual", "mode_alpha",
     "motion_mode", "H", "H_dot", "sdot_from_qdot",
 ]
