@@ -41,7 +41,8 @@ from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
-from .problem import Fit, MeasuredBase, Problem, make_problem
+from .problem import (Fit, MeasuredBase, Problem, counted_by_own_correlation, make_problem,
+                      own_correlation_rows)
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
@@ -461,7 +462,14 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             black_box = generic(ch.name)
             own = None if ref_problem is None else fitting.reference_levels(
                 ref_problem, model, [black_box], lag, cache)[black_box.label] or None
-            cand = fitting.fit_hypothesis(fp, hp, model, black_box, base, lag, sheet, cache, own)
+            # six smooth columns fit any slow wander of a residual: rows counted by its own correlation
+            fitted = next((c for c in fp.channels if c.name == ch.name), ch)
+            extension = black_box.columns(fitted, None)
+            own_rows = own_correlation_rows(fitted, lag, None if extension is None
+                                            else np.hstack([extension, fitted.nuisance]))
+            fp_c, hp_c = (counted_by_own_correlation(pb, ch.name, own_rows, lag) for pb in (fp, hp))
+            base_c = fitting.solve(fp_c, model, None, None, lag, cache)
+            cand = fitting.fit_hypothesis(fp_c, hp_c, model, black_box, base_c, lag, sheet, cache, own)
             if cand is not None and cand.significant and cand.evaluation.shrink_affected >= GENERIC_SHRINK \
                     and cand.evaluation.shrink_affected_ci[0] > 0 \
                     and (ch.kind != "rolling" or _removed_rms(cand.evaluation, ch.name)

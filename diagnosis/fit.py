@@ -36,7 +36,7 @@ from qomni.ident.result import IdentificationResult
 from .channels import ChannelData
 from .hypotheses.base import Hypothesis, Magnitude, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate
-from .problem import Fit, Problem, cached_columns, channel_lag
+from .problem import Fit, Problem, cached_columns
 
 #: Significance level of the F test (first effect; further effects in forward selection: alpha_more).
 #: The F test with n/L effective rows is conservative; the held-out shrinkage is the second gate.
@@ -132,7 +132,7 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     x, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
     x = x / scale
     rss = float(np.sum((b - A @ x) ** 2))
-    n_eff = sum(len(blk) / channel_lag(problem.channels[i], lag) for blk, i in zip(blocks_b, used))
+    n_eff = sum(len(blk) / problem.correlation_rows(i, lag) for blk, i in zip(blocks_b, used))
     dof = max(n_eff - n_cols, 1.0)
     s2 = max(rss / dof, 1.0)
     cov = np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale) * s2

@@ -3,7 +3,7 @@ the fit's result type, and the hypothesis columns cache (see :mod:`.fit`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -43,6 +43,71 @@ class Problem:
     #: With free base parameters, those measured independently of these rows are held by that
     #: measurement (:func:`.fit.solve`); None: all free.
     measured: MeasuredBase | None = None
+    #: Per channel, rows per independent row where it differs from :func:`channel_lag` (None: that lag);
+    #: set by :func:`counted_by_own_correlation`.
+    correlation: list[float | None] | None = None
+
+    def correlation_rows(self, i: int, lag: int) -> float:
+        """Rows of channel ``i`` that count as one independent row (weights and n/L of the F test)."""
+        if self.correlation is not None and self.correlation[i] is not None:
+            return self.correlation[i]
+        return channel_lag(self.channels[i], lag)
+
+
+def integrated_correlation_rows(residual: np.ndarray, window_factor: float = 5.0) -> float:
+    """Integrated autocorrelation time τ = 1 + 2·Σ_{k=1}^{M} ρ_k of a residual series, in rows (≥ 1),
+    the window M chosen by Sokal's rule (the smallest M ≥ ``window_factor``·τ(M)): n/τ of its n rows
+    are independent for the variance of a mean or a least-squares coefficient (the Bartlett/Newey–West
+    long-run variance with a data-chosen bandwidth).
+
+    Args:
+        residual: (n,) rows in time order.
+    Returns:
+        τ in rows; 1.0 for fewer than 10 rows or a constant series.
+    """
+    x = np.asarray(residual, dtype=float)
+    x = x - x.mean()
+    n = len(x)
+    if n < 10 or not np.any(x):
+        return 1.0
+    spectrum = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    acf = acf / acf[0]
+    tau = 1.0 + 2.0 * np.cumsum(acf[1:])
+    enough = np.arange(1, n) >= window_factor * tau
+    return float(max(tau[np.argmax(enough)] if enough.any() else tau[-1], 1.0))
+
+
+def own_correlation_rows(ch: ChannelData, lag: int, explained: np.ndarray | None = None) -> float:
+    """Rows over which the channel's own residual (every fitted row, in time order) stays correlated:
+    :func:`integrated_correlation_rows`, at least :func:`channel_lag`.
+
+    Args:
+        explained: (n, m) columns of the channel whose least-squares fit is taken out of the residual
+            first (the extension under test: the correlation of what it leaves, as a heteroscedasticity-
+            and-autocorrelation-consistent variance takes it from the extended model's residual). The
+            base columns are not: the fit holds them by their prior, and taken out freely they would
+            take a wander the fit leaves.
+    """
+    r = ch.residual[ch.fitted]
+    if explained is not None and explained.shape[1]:
+        X = explained[ch.fitted]
+        coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+        r = r - X @ coef
+    return max(float(channel_lag(ch, lag)), integrated_correlation_rows(r))
+
+
+def counted_by_own_correlation(problem: Problem, name: str, rows: float, lag: int) -> Problem:
+    """The same problem with channel ``name`` counted by ``rows`` per independent row instead of its
+    :func:`channel_lag`: its weight scaled by √(L/rows) and its n/L in the F test by L/rows (a channel
+    ``problem`` does not hold is left alone)."""
+    weights = problem.weights.copy()
+    correlation = list(problem.correlation or [None] * len(problem.channels))
+    for i, ch in enumerate(problem.channels):
+        if ch.name == name:
+            weights[i] *= math.sqrt(problem.correlation_rows(i, lag) / rows)
+            correlation[i] = rows
+    return replace(problem, weights=weights, correlation=correlation)
 
 
 def window_index(time: np.ndarray, window: float = WINDOW) -> np.ndarray:
@@ -104,7 +169,8 @@ def restrict(problem: Problem, keep) -> Problem:
     idx = [i for i, ch in enumerate(problem.channels) if keep(ch)]
     return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
                    [problem.holdout_rows[i] for i in idx], problem.weights[idx],
-                   [problem.window_id[i] for i in idx], problem.base_prior, problem.measured)
+                   [problem.window_id[i] for i in idx], problem.base_prior, problem.measured,
+                   None if problem.correlation is None else [problem.correlation[i] for i in idx])
 
 
 @dataclass

@@ -413,3 +413,46 @@ def test_the_backward_step_withdraws_an_effect_a_later_one_explains_and_keeps_a_
     assert kept_fits[0].theta[0] == pytest.approx(2.0, abs=0.1)
     kept, accepted, kept_c, _ = backward(2.0 * ch.b + 1.5 * ch.c + noise, "bc")
     assert kept == ["b", "c"] and [c.magnitude for c in kept_c] == [0.5, 0.5]   # nothing withdrawn
+
+
+def _ar1(rng, n, phi):
+    e = rng.normal(size=n)
+    x = np.empty(n)
+    x[0] = e[0] / math.sqrt(1 - phi ** 2)
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.8, 0.97])
+def test_the_integrated_correlation_time_of_a_residual_is_that_of_its_process(phi):
+    """AR(1): τ = (1 + φ)/(1 − φ) rows (1, 9, 65.7)."""
+    from qomni.diagnosis.problem import integrated_correlation_rows
+    taus = [integrated_correlation_rows(_ar1(np.random.default_rng(s), 20000, phi)) for s in range(5)]
+    assert np.median(taus) == pytest.approx((1 + phi) / (1 - phi), rel=0.2, abs=0.3)
+
+
+def test_a_smooth_column_on_a_wandering_residual_is_calibrated_only_counted_by_its_own_correlation():
+    """The black-box test's null: a residual that wanders (AR(1), τ = 66 rows) and a smooth column with
+    nothing of it. Counted by the filter's L (here 1 row) the F test rejects far above its level; counted
+    by the correlation time of what the column leaves (``own_correlation_rows``,
+    ``counted_by_own_correlation``) it holds it."""
+    from qomni.diagnosis.problem import counted_by_own_correlation, own_correlation_rows
+    n, lag = 4000, 1
+    t = np.arange(n) * 0.002
+    smooth = Hypothesis("smooth", "", ("c",), lambda ch, _: ch.phi[:, None])
+    rejected = {"L": 0, "own": 0}
+    trials = 120
+    for seed in range(trials):
+        rng = np.random.default_rng(100 + seed)
+        ch = NS(name="c", kind="torque", base=rng.normal(size=(n, 10)), residual=_ar1(rng, n, 0.97),
+                nuisance=np.zeros((n, 0)), fitted=np.ones(n, bool), time=t,
+                phi=np.sin(2 * np.pi * 0.4 * t + rng.uniform(0, 2 * np.pi)), context=NS(k=2))
+        problem = Problem([ch], [np.ones(n, bool)], [np.zeros(n, bool)], np.ones(1), [np.zeros(n, int)])
+        own = counted_by_own_correlation(problem, "c", own_correlation_rows(ch, lag, ch.phi[:, None]), lag)
+        for key, pb in (("L", problem), ("own", own)):
+            base = fitting.solve(pb, MODEL, None, None, lag)
+            ext = fitting.solve(pb, MODEL, smooth, None, lag)
+            rejected[key] += fitting.f_test(base, ext, 0) < 0.05
+    assert rejected["L"] / trials > 0.3, rejected
+    assert rejected["own"] / trials < 0.12, rejected
