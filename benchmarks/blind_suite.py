@@ -10,6 +10,8 @@
                                                        # against local processes, same tasks, same run
     python benchmarks/blind_suite.py --range-ends      # a quick campaign at both ends of every effect's
                                                        # realistic range: completed, peak torque / limit
+    python benchmarks/blind_suite.py --withhold --work W   # each recorded single-effect case of W diagnosed
+                                                       # against its twin without its effect's hypothesis
 
 The cases are drawn from a master seed (qomni.suite.cases), new for every new work directory and
 recorded in ``<work>/blind_suite.json`` with each case's draw (``blind_suite_ideal.json`` with
@@ -97,6 +99,47 @@ def range_ends(work: Path, entries, console) -> int:
     return 1 if failed else 0
 
 
+def _diagnose_withheld(run_dir: str, name: str) -> str:
+    """Verdict on one case against its twin with hypothesis ``name`` left out (a worker process)."""
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.twin import TWIN_REFERENCE
+
+    d = Path(run_dir)
+    try:
+        return diagnose_paths(d / "identification.json", d, reference_dir=d / TWIN_REFERENCE, simulate=False,
+                              withhold=(name,)).verdict
+    except Exception as exc:  # a failed case is reported, not fatal to the check
+        return f"error: {type(exc).__name__}: {exc}"
+
+
+def withheld(work: Path, workers, console) -> int:
+    """Every single-effect case of the twin-reference results in ``work`` diagnosed against its recorded twin
+    with its own effect's hypothesis left out of the library: flagged as unexplained structure, named as
+    another effect (a false explanation), or not seen."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from qomni.blind_suite import read_results
+    from qomni.diagnosis.diagnose import VERDICT_NONE, VERDICT_UNEXPLAINED
+    from qomni.twin import TWIN_REFERENCE
+
+    cases = [r.case for r in read_results(work / RESULTS["twin"])
+             if len(r.case.truth) == 1 and (work / r.case.name / TWIN_REFERENCE / "signals.csv").exists()]
+    if not cases:
+        console.print(f"{work} holds no single-effect case with its twin recorded", markup=False)
+        return 2
+    counts = {"unexplained": 0, "other effect": 0, "none": 0, "error": 0}
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        verdicts = pool.map(_diagnose_withheld, [str(work / c.name) for c in cases], [c.truth[0] for c in cases])
+        for case, verdict in zip(cases, verdicts):
+            kind = ("unexplained" if VERDICT_UNEXPLAINED in verdict else "none" if verdict.endswith(VERDICT_NONE)
+                    else "error" if verdict.startswith("error") else "other effect")
+            counts[kind] += 1
+            console.print(f"{case.name:45s} without {case.truth[0]:22s} → {verdict}", markup=False)
+    console.print(f"{len(cases)} cases, own hypothesis withheld: "
+                  + ", ".join(f"{k} {v}" for k, v in counts.items()), markup=False)
+    return 1 if counts["error"] else 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 draw per effect, quick campaigns")
@@ -120,12 +163,17 @@ def main(argv=None) -> int:
     ap.add_argument("--dask-vs-local", type=int, default=None, metavar="N",
                     help="time N tasks on a local Dask cluster bound to 127.0.0.1 against local processes")
     ap.add_argument("--effects", nargs="*", default=None, help="only these suite entries")
+    ap.add_argument("--withhold", action="store_true",
+                    help="diagnose each recorded single-effect case against its twin without its own effect's "
+                    "hypothesis (unexplained structure, another effect, or nothing)")
     ap.add_argument("--recorded-only", action="store_true",
                     help="diagnose only the cases already recorded in --work (no new campaigns)")
     args = ap.parse_args(argv)
     console = Console() if sys.stdout.isatty() else Console(width=200)
     if args.range_ends:
         return range_ends(args.work / "range_ends", args.effects, console)
+    if args.withhold:
+        return withheld(args.work, args.workers, console)
     results_path = args.work / RESULTS[args.reference]
     runs = {mode: read_run(args.work / f) for mode, f in RESULTS.items() if (args.work / f).exists()}
     recorded = runs.get(args.reference, {})

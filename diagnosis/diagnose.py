@@ -364,7 +364,8 @@ def _load_run(run_dir, model: IdentificationResult):
 
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
              *, reference_dir: str | Path | None = None, simulate: bool = True,
-             model_source: str = "", model_from_data: bool = False) -> Diagnosis:
+             model_source: str = "", model_from_data: bool = False,
+             withhold: tuple[str, ...] = ()) -> Diagnosis:
     """Diagnose the gap between ``model`` and the run in ``data_dir``.
 
     Args:
@@ -384,9 +385,15 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             those values and σ come from the same rows, so a prior on them counts the data twice, and it
             holds the parameters where they absorbed part of any effect that biased the identification
             (a +13 % torque constant on one drive, fitted at 0.5 % within the prior and at 11 % free).
+        withhold: names of hypotheses left out of the library (every variant), to see what the diagnosis
+            says of an effect it has no hypothesis for (``benchmarks/blind_suite.py --withhold``).
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
+        ValueError: ``withhold`` names a hypothesis the library does not have.
     """
+    unknown = set(withhold) - {h.name for h in library(model_from_data)}
+    if unknown:
+        raise ValueError(f"no hypothesis named {', '.join(sorted(unknown))} to withhold")
     signals, sheet, meta = _load_run(data_dir, model)
     data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps()}
     lag = correlation_lag(sheet.drive.cycle_time)
@@ -396,7 +403,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
-    hypotheses = library(model_from_data)
+    hypotheses = tuple(h for h in library(model_from_data) if h.name not in withhold)
     measured = lifted = None
     on_lifted_wheels = read_lifted(data_dir)
     if model_from_data and on_lifted_wheels is not None:

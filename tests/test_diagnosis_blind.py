@@ -222,3 +222,28 @@ def test_heavy_steering_units_are_named_against_the_runs_own_twin_by_the_arcs(tm
     assert [a["name"] for a in gap["accepted"]] == ["heavy_steering_units"], gap["verdict"]
     m_w = gap["accepted"][0]
     assert m_w["ci"][0] <= 12.0 <= m_w["ci"][1] and m_w["ci"][0] > 4.0
+
+
+def test_a_hypothesis_to_withhold_must_be_in_the_library():
+    from qomni.diagnosis.diagnose import diagnose
+
+    with pytest.raises(ValueError, match="no_such_effect"):
+        diagnose(None, "nowhere", withhold=("no_such_effect",))
+
+
+@pytest.mark.slow
+def test_an_effect_whose_hypothesis_is_withheld_is_not_named(suite):
+    """``withhold`` leaves a hypothesis out of the library, every variant: the torque-constant case against
+    its own twin then names no torque-constant error and ranks none (what it says instead is measured by
+    ``benchmarks/blind_suite.py --withhold``, docs/results.md)."""
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.twin import twin_reference
+
+    work, _ = suite
+    run = work / "torque"
+    ref = twin_reference(run / "identification.json", run, run / "twin_gap" / "twin_reference")
+    d = diagnose_paths(run / "identification.json", run, reference_dir=ref, simulate=False,
+                       withhold=("torque_constant_error",))
+    assert all(c.hypothesis.name != "torque_constant_error" for c in d.candidates)
+    assert "torque_constant_error" not in d.verdict
+    assert d.candidates, "the other hypotheses are still tested"
