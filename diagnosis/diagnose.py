@@ -41,7 +41,7 @@ from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
-from .problem import (Fit, MeasuredBase, Problem, counted_by_own_correlation, make_problem,
+from .problem import (Fit, MeasuredBase, Problem, cached_columns, counted_by_own_correlation, make_problem,
                       own_correlation_rows)
 from .simulate import simulate_channel
 
@@ -391,7 +391,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
         ValueError: ``withhold`` names a hypothesis the library does not have.
     """
-    unknown = set(withhold) - {h.name for h in library(model_from_data)}
+    available = library(model_from_data)
+    unknown = set(withhold) - {h.name for h in available}
     if unknown:
         raise ValueError(f"no hypothesis named {', '.join(sorted(unknown))} to withhold")
     signals, sheet, meta = _load_run(data_dir, model)
@@ -403,7 +404,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
-    hypotheses = tuple(h for h in library(model_from_data) if h.name not in withhold)
+    hypotheses = tuple(h for h in available if h.name not in withhold)
     measured = lifted = None
     on_lifted_wheels = read_lifted(data_dir)
     if model_from_data and on_lifted_wheels is not None:
@@ -471,7 +472,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                 ref_problem, model, [black_box], lag, cache)[black_box.label] or None
             # six smooth columns fit any slow wander of a residual: rows counted by its own correlation
             fitted = next((c for c in fp.channels if c.name == ch.name), ch)
-            extension = black_box.columns(fitted, None)
+            extension = cached_columns(black_box, None, fitted, cache)
             own_rows = own_correlation_rows(fitted, lag, None if extension is None
                                             else np.hstack([extension, fitted.nuisance]))
             fp_c, hp_c = (counted_by_own_correlation(pb, ch.name, own_rows, lag) for pb in (fp, hp))
