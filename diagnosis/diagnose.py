@@ -29,7 +29,7 @@ import numpy as np
 from qomni.conventions import P1_NAMES
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
-from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_run,
+from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_repaired_run,
                                read_json, read_lifted)
 from qomni.ident.campaign import VALIDATION_STEP
 from qomni.ident.torque_timing import model_lag, shift_torque
@@ -357,8 +357,9 @@ def _steering_rule_rows(data: list[ChannelData], reference: list[ChannelData], l
 
 
 def _load_run(run_dir, model: IdentificationResult):
-    """A run's signals with the torque timing of ``model`` (its torque lag applied, as in its fit)."""
-    signals, sheet, meta = load_run(run_dir)
+    """A run's signals with the glitch repair and the torque timing of ``model``'s fit (its torque lag
+    applied)."""
+    signals, sheet, meta, _ = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
     return shift_torque(signals, model_lag(model)), sheet, meta
 
 

@@ -122,9 +122,9 @@ def predict_windows(run_dir: str | os.PathLike, fmu_path: str | os.PathLike | No
     """
     from qomni.fmu.cosim import PlantVehicle
     from qomni.fmu.export import export_plant_fmu
-    from qomni.ident.rundir import load_identification, load_run
+    from qomni.ident.rundir import load_identification, load_repaired_run
 
-    signals, sheet, _ = load_run(run_dir)
+    signals, sheet, _, _ = load_repaired_run(run_dir)
     ts = sheet.drive.cycle_time
     n_w = int(round(window / ts))
     if n_w < 2:

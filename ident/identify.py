@@ -19,7 +19,7 @@ from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correl
                              identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
-                     b_w_source, file_sha256, load_identification, load_run, read_json, require_complete, write_json)
+                     b_w_source, file_sha256, load_identification, load_repaired_run, read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .least_squares import IdentifiabilityError
@@ -32,19 +32,19 @@ IV_ITERATIONS = 2
 
 
 def identify_run(run_dir: str | Path, *, torque_lag: str | float = 0.0,
-                 estimator: str = "wls") -> IdentificationResult:
+                 estimator: str = "wls", repair_spikes: bool = True) -> IdentificationResult:
     """Identify from a run directory and write ``identification.json`` into it (:func:`identify`).
 
     Raises: as :func:`identify`.
     """
     run_dir = Path(run_dir)
-    result, data = identify(run_dir, torque_lag=torque_lag, estimator=estimator)
+    result, data = identify(run_dir, torque_lag=torque_lag, estimator=estimator, repair_spikes=repair_spikes)
     write_json(run_dir / IDENTIFICATION_JSON, data)
     return result
 
 
 def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
-             estimator: str = "wls") -> tuple[IdentificationResult, dict]:
+             estimator: str = "wls", repair_spikes: bool = True) -> tuple[IdentificationResult, dict]:
     """Identify from a run directory: the result and the content of its ``identification.json``, not
     written (a single-axis recording made with another torque lag is re-identified in place).
 
@@ -56,12 +56,15 @@ def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
             fit, the single-axis B_w too when the run has a single-axis recording. The estimate is
             made and reported in every case.
         estimator: one of :data:`.estimators.ESTIMATORS`.
+        repair_spikes: repair isolated glitches of the drives' signals before filtering (:mod:`.spikes`;
+            reported as ``spikes`` in identification.json either way).
     Raises:
-        RunDirectoryError, RecordingError, DataSheetError: the run directory; IdentifiabilityError: the
+        RunDirectoryError, RecordingError, DataSheetError: the run directory (RecordingError also for a
+        signal column more than 5 % corrupt); IdentifiabilityError: the
         campaign does not determine p₁; TorqueTimingError: the lag; ValueError: an unknown estimator.
     """
     run_dir = Path(run_dir)
-    signals, sheet, meta = load_run(run_dir)
+    signals, sheet, meta, spikes = load_repaired_run(run_dir, repair=repair_spikes)
     require_complete(meta, IDENTIFICATION_STEPS, str(run_dir / METADATA))
     B_w, source = b_w_source(run_dir, sheet)
     ts = sheet.drive.cycle_time
@@ -91,6 +94,7 @@ def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     else:
         result = fit(estimator)
     result.torque_lag = timing.to_json_dict()
+    result.spikes = spikes.to_json_dict()
     data = result.to_json_dict()
     data["parameters"]["B_w"]["source"] = source
     data["filter"] = {"omega_g": filtering.OMEGA_G, "unit": "rad/s", "zero_phase": True}
@@ -111,10 +115,12 @@ def single_axis_lag(run_dir: Path) -> float:
 
 
 def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
-    """:func:`load_run` with the torque corrected by the lag of ``identification.json``."""
+    """:func:`load_repaired_run` (glitches repaired unless the identification kept them) with the torque
+    corrected by the lag of ``identification.json``."""
     run_dir = Path(run_dir)
-    signals, sheet, meta = load_run(run_dir)
-    return shift_torque(signals, model_lag(load_identification(run_dir))), sheet, meta
+    model = load_identification(run_dir)
+    signals, sheet, meta, _ = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
+    return shift_torque(signals, model_lag(model)), sheet, meta
 
 
 def validate_run(run_dir: str | Path) -> ValidationResult:

@@ -49,6 +49,8 @@ class IdentificationResult:
         σ_p from a moving-block bootstrap over campaign windows (:mod:`.bootstrap`), and its settings.
     torque_lag : dict
         The lag of the reported torque the rows were corrected for (:mod:`.torque_timing`), if any.
+    spikes : dict
+        Isolated glitches repaired in the recorded signals before filtering (:mod:`.spikes`), if tested.
     """
 
     values: dict[str, float]
@@ -71,6 +73,7 @@ class IdentificationResult:
     std_bootstrap: dict[str, float] = field(default_factory=dict)
     bootstrap: dict = field(default_factory=dict)
     torque_lag: dict = field(default_factory=dict)
+    spikes: dict = field(default_factory=dict)
 
     @property
     def p1(self) -> np.ndarray:
@@ -132,6 +135,7 @@ class IdentificationResult:
             "bootstrap": dict(self.bootstrap),
             "identifiability": self.identifiability,
             **({"torque_lag": dict(self.torque_lag)} if self.torque_lag else {}),
+            **({"spikes": dict(self.spikes)} if self.spikes else {}),
             "velocity_threshold": self.velocity_threshold,
             "rows_used": dict(self.rows_used),
             "rows_total": dict(self.rows_total),
@@ -193,5 +197,6 @@ class IdentificationResult:
                            if "std_bootstrap" in params[n]},
             bootstrap=dict(d.get("bootstrap", {})),
             torque_lag=dict(d.get("torque_lag", {})),
+            spikes=dict(d.get("spikes", {})),
         )
 

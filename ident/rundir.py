@@ -153,6 +153,19 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     return complete_rows(signals, meta, str(run_dir / METADATA)), sheet, meta
 
 
+def load_repaired_run(run_dir: str | Path, repair: bool = True):
+    """:func:`load_run` with isolated glitches in the drives' signals repaired (:mod:`.spikes`).
+
+    Returns (signals, data sheet, metadata, :class:`~.spikes.SpikeReport`); with ``repair`` false the
+    signals as recorded and the report of what would have been repaired.
+    Raises: as :func:`load_run`; RecordingError: a column more corrupt than single glitches."""
+    from .spikes import repair_spikes
+
+    signals, sheet, meta = load_run(run_dir)
+    signals, report = repair_spikes(signals, str(Path(run_dir) / SIGNALS), repair)
+    return signals, sheet, meta, report
+
+
 def complete_rows(signals: Signals, meta: dict, source: str) -> Signals:
     """The rows of the steps the run completed. A run that stopped (Ctrl-C, a fault, the steering near
     its stops) keeps every row it recorded, but the step it stopped in never reached its end: its rows

@@ -20,6 +20,9 @@ from .loaders import (check_bus_spec, load_datasheet, load_description, load_eff
 ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
                   "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
                   "masses and friction coefficients >= 0 (equals wls when wls is admissible).")
+SPIKES_HELP = ("Repair isolated glitches (a sample far from both neighbours: a corrupted frame, a zeroed row) "
+               "in the drives' signals before filtering; --keep-spikes fits the samples as recorded. Either way "
+               "identification.json reports what was found.")
 TORQUE_LAG_HELP = ("Lag of the reported torque actual (0x6077) behind the applied torque that the fit corrects "
                    "for: 'auto' the campaign's own estimate, a number a known lag in seconds; 0 (default): "
                    "0x6077 as docs/conventions.md defines it. The estimate is reported in every case.")
@@ -177,6 +180,11 @@ def _print_parameters(result) -> None:
                       f"({result.estimator_info.get('iterations')} iterations); the values are the last iterate")
     if result.estimator_info.get("active_bounds"):
         console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
+    spikes = result.spikes
+    if spikes.get("total_corrupt"):
+        columns = ", ".join(f"{k} {v}" for k, v in spikes["corrupt_samples"].items() if v)
+        console.print(f"warning: {spikes['total_corrupt']} samples stand apart from their neighbours "
+                      f"({columns}); {'repaired before filtering' if spikes['repaired'] else 'kept as recorded'}")
     lag = result.torque_lag
     if lag:
         console.print(f"torque lag (0x6077 behind the applied torque) corrected for: {1e3 * lag['value']:.3f} ms "
@@ -254,12 +262,14 @@ def identify(
     run_dir: Path = typer.Argument(..., help="Run directory of a campaign."),
     estimator: str = typer.Option("wls", help=ESTIMATOR_HELP),
     torque_lag: str = typer.Option("0", "--torque-lag", help=TORQUE_LAG_HELP),
+    repair_spikes: bool = typer.Option(True, "--repair-spikes/--keep-spikes", help=SPIKES_HELP),
 ):
     """Identify the parameters from a recorded campaign (writes identification.json)."""
     from qomni.ident.identify import identify_run
 
     lag = _identify_options(estimator, torque_lag)
-    _print_parameters(guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator))))
+    _print_parameters(guarded(lambda: _identification_errors(
+        lambda: identify_run(run_dir, torque_lag=lag, estimator=estimator, repair_spikes=repair_spikes))))
     console.print(f"written {run_dir / IDENTIFICATION_JSON}")
 
 
