@@ -19,6 +19,7 @@ from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
 
 from .result import IdentificationResult
 from .recording import Signals, read_signals
+from .plausibility import check_coverage, check_drives
 
 METADATA = "metadata.json"
 SIGNALS = "signals.csv"
@@ -141,7 +142,9 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     """Signals, data sheet and metadata of a run directory.
 
     Raises:
-        RunDirectoryError: a file is missing; RecordingError/DataSheetError: a file is invalid.
+        RunDirectoryError: a file is missing; RecordingError/DataSheetError: a file is invalid, signals.csv
+        lacks rows of a step the metadata says completed, or a drive's signals are dead or disagree
+        (:mod:`.plausibility`).
     """
     run_dir = Path(run_dir)
     for name in (SIGNALS, METADATA):
@@ -150,6 +153,9 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     meta = read_json(run_dir / METADATA)
     sheet = datasheet_from_metadata(meta, str(run_dir / METADATA))
     signals = read_signals(run_dir / SIGNALS)
+    check_coverage(signals, completed_steps(meta, str(run_dir / METADATA)), sheet.drive.cycle_time,
+                   str(run_dir / SIGNALS))
+    check_drives(signals, str(run_dir / SIGNALS))
     return complete_rows(signals, meta, str(run_dir / METADATA)), sheet, meta
 
 

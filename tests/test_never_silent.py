@@ -53,7 +53,7 @@ def _cli(*args):
 # --- 1. a partial run ---------------------------------------------------------------------------------
 def test_identification_refuses_a_run_that_stopped_in_an_identification_step(run_dir):
     meta = json.loads((run_dir / "metadata.json").read_text())
-    cut = [s for s in meta["segments"] if s["name"] != "rotation"][:-2]      # stopped during the rotation
+    cut = [s for s in meta["segments"] if s["name"] != "rotation"]            # stopped during the rotation
     _edit_metadata(run_dir, segments=cut, status="aborted: KeyboardInterrupt: ")
     with pytest.raises(RunDirectoryError, match=r"did not complete .*rotation.*aborted"):
         identify_run(run_dir)
@@ -148,6 +148,43 @@ def test_each_lifted_wheel_is_read_only_when_it_is_complete_and_physical(tmp_pat
     (tmp_path / "single_axis.json").write_text(_single_axis(wheels=wheels))
     with pytest.raises(RunDirectoryError, match=f"single_axis.json: {message}"):
         read_lifted(tmp_path)
+
+
+# --- 4. a file cut short, a dead or reversed drive signal ---------------------------------------------------
+def _edit_column(run: Path, column: str, change) -> None:
+    lines = (run / "signals.csv").read_text().splitlines()
+    at = lines[0].split(",").index(column)
+    out = [lines[0]]
+    for row in lines[1:]:
+        f = row.split(",")
+        f[at] = repr(float(change(float(f[at]))))
+        out.append(",".join(f))
+    (run / "signals.csv").write_text("\n".join(out) + "\n")
+
+
+def test_a_signals_file_cut_short_of_its_metadata_is_refused_naming_the_step(run_dir):
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    (run_dir / "signals.csv").write_text("\n".join(lines[:1500]) + "\n")     # in the rotation
+    with pytest.raises(RecordingError, match=r"step 'rotation' .* has \d+ of its 1002 rows; the file ends "
+                                             r"at .* cut short"):
+        load_run(run_dir)
+    result = _cli("identify", run_dir)
+    assert result.exit_code == 2 and "cut short" in result.output and "Traceback" not in result.output
+
+
+@pytest.mark.parametrize("column, change, message", [
+    ("motor_torque_rl [N m motor]", lambda v: 0.0, r"motor_torque_rl is 0.0 N m in every row"),
+    ("motor_torque_fr [N m motor]", lambda v: -v, r"motor_torque_fr does not follow the commanded torque "
+                                                  r"\(rank correlation -1.00"),
+    ("motor_position_fl [rad motor]", lambda v: 3.0, r"motor_position_fl does not move with motor_velocity_fl "
+                                                     r"\(R² = 0.00"),
+    ("motor_velocity_rr [rad/s motor]", lambda v: -v, r"motor_position_rr does not move with"),
+])
+def test_a_dead_or_reversed_drive_signal_is_refused(run_dir, column, change, message):
+    # each of these still gives parameters, wrong ones (a zeroed torque actual: m_ch -26 %)
+    _edit_column(run_dir, column, change)
+    with pytest.raises(RecordingError, match=message):
+        load_run(run_dir)
 
 
 # --- 5. user text is never console markup --------------------------------------------------------------

@@ -1,0 +1,116 @@
+"""Whole-recording checks of a campaign run: every row the metadata promises is there, and every drive's
+signals are alive and agree with each other.
+
+Each value of ``signals.csv`` is checked as it is read (:func:`.recording.read_signals`: finite, time
+increasing); single glitches are repaired (:mod:`.spikes`). What neither sees is a file cut short after
+a step that ``metadata.json`` says completed, or a drive whose signal is dead or wired the wrong way
+for the whole run: each still gives parameters, wrong ones (a zeroed torque actual on one drive: m_ch
+−26 %; a frozen encoder: m_ch +35 %). These checks refuse such a run with a
+:class:`~.recording.RecordingError` naming the file, the step or column and what is wrong.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from .recording import WHEELS, RecordingError, Signals
+
+#: Shortest recording the drive checks judge (s): a few seconds of a campaign step move every drive.
+MIN_SPAN = 2.0
+#: Rows a completed step may lack against its duration / T_s: the time stamps' rounding at its ends.
+ROW_TOLERANCE = 2
+#: Least R² of a drive's position change over a cycle against T_s times its velocity actual. The
+#: velocity actual (0x606C) is the position's (0x6064) rate; a drive's own filtering and time stamping
+#: leave R² near 1 (the emulator's drives: 1.000), a frozen encoder 0, a reversed polarity −3.
+MIN_POSITION_VELOCITY_R2 = 0.5
+#: Least correlation of a drive's torque actual (0x6077) with the torque the master commanded: the
+#: current loop follows its demand (1.000 on the emulator's drives with delays, lags and limits), a
+#: torque actual of the wrong sign or another drive's does not.
+MIN_TORQUE_CORRELATION = 0.5
+
+
+def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, path: str) -> None:
+    """Every completed step (``segments``: ``{name, t_start, t_end}``) has its rows in ``signals``.
+
+    A step of duration D recorded every ``cycle_time`` holds D/T_s rows in (t_start, t_end]: the
+    recorder writes one per SYNC, a missed TPDO as the value held from the cycle before.
+
+    Raises:
+        RecordingError: a step has fewer rows than that, or rows of another step inside it (names the
+            step, its time span and the rows found).
+    """
+    time = np.asarray(signals.time, dtype=float)
+    eps = 1e-6 * cycle_time
+    for seg in segments:
+        t0, t1 = seg["t_start"], seg["t_end"]
+        inside = (time > t0 + eps) & (time <= t1 + eps)
+        expected = int(round((t1 - t0) / cycle_time))
+        found = int(inside.sum())
+        if found < expected - ROW_TOLERANCE:
+            end = f"; the file ends at {time[-1]:.3f} s" if time[-1] < t1 - cycle_time else ""
+            raise RecordingError(f"{path}: step '{seg['name']}' ({t0:.3f}–{t1:.3f} s) completed by the "
+                                 f"metadata has {found} of its {expected} rows{end}: the recording is cut "
+                                 "short or rows are missing")
+        others = sorted(set(signals.step[inside]) - {seg["name"]})
+        if others:
+            raise RecordingError(f"{path}: rows of {', '.join(others)} inside step '{seg['name']}' "
+                                 f"({t0:.3f}–{t1:.3f} s): the recording does not match its metadata")
+
+
+def _robust_r2(d: np.ndarray, rate: np.ndarray) -> float:
+    """1 − (median |d − rate| / median |rate|)² over the rows where either moves: R² with medians for
+    mean squares, so that the few glitches :mod:`.spikes` repairs later do not decide it (a frozen
+    signal: 0, a reversed one: −3, agreeing ones: near 1)."""
+    moving = (d != 0) | (rate != 0)
+    scale = float(np.median(np.abs(rate[moving]))) if moving.any() else 0.0
+    if scale == 0.0:
+        return 1.0 if not np.any(d[moving]) else -np.inf
+    return 1.0 - (float(np.median(np.abs(d[moving] - rate[moving]))) / scale) ** 2
+
+
+def check_drives(signals: Signals, path: str) -> None:
+    """Each drive's position, velocity and torque actual are alive and agree with each other, over a
+    recording of at least :data:`MIN_SPAN` (a shorter one is too little evidence either way).
+
+    - position and velocity: the position's change over a cycle (consecutive rows only) against T_s
+      times the velocity actual at either end of it or their mean (the drive's convention), robust R²
+      (:func:`_robust_r2`) ≥ :data:`MIN_POSITION_VELOCITY_R2`;
+    - torque actual: not constant, and its rank correlation with the commanded torque at least
+      :data:`MIN_TORQUE_CORRELATION` (skipped where the recording holds no commanded torque).
+
+    Raises:
+        RecordingError: names the column and the figure that fails.
+    """
+    time = np.asarray(signals.time, dtype=float)
+    if len(time) < 3 or time[-1] - time[0] < MIN_SPAN:
+        return
+    dt = np.diff(time)
+    ts = float(np.median(dt))
+    consecutive = np.abs(dt - ts) <= 0.5 * ts
+    for j, wheel in enumerate(WHEELS):
+        x, v = signals.motor_position[:, j], signals.motor_velocity[:, j]
+        d = np.diff(x)[consecutive]
+        if not np.any(d) and not np.any(v):
+            raise RecordingError(f"{path}: motor_position_{wheel} and motor_velocity_{wheel} never change: "
+                                 f"drive {wheel} did not report (or its wheel never turned)")
+        rates = (v[1:], v[:-1], 0.5 * (v[1:] + v[:-1]))
+        r2 = max(_robust_r2(d, ts * rate[consecutive]) for rate in rates)
+        if r2 < MIN_POSITION_VELOCITY_R2:
+            raise RecordingError(f"{path}: motor_position_{wheel} does not move with motor_velocity_{wheel} "
+                                 f"(R² = {r2:.2f} of the position's change per cycle against T_s × velocity, "
+                                 f"at least {MIN_POSITION_VELOCITY_R2} expected): a frozen encoder, a reversed "
+                                 "polarity or another unit in one of them")
+        torque, command = signals.motor_torque[:, j], signals.motor_torque_cmd[:, j]
+        if np.ptp(torque) == 0:
+            raise RecordingError(f"{path}: motor_torque_{wheel} is {float(torque[0])!r} N m in every row: drive "
+                                 f"{wheel} did not report its torque actual")
+        if np.ptp(command) > 0:
+            rho = float(spearmanr(torque, command)[0])
+            if rho < MIN_TORQUE_CORRELATION:
+                raise RecordingError(f"{path}: motor_torque_{wheel} does not follow the commanded torque "
+                                     f"(rank correlation {rho:.2f}, at least {MIN_TORQUE_CORRELATION} "
+                                     "expected): a reversed torque polarity or another drive's value")
+
+
+__all__ = ["check_coverage", "check_drives", "MIN_SPAN", "ROW_TOLERANCE", "MIN_POSITION_VELOCITY_R2",
+           "MIN_TORQUE_CORRELATION"]
