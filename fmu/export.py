@@ -35,6 +35,10 @@ def _identification_values(identification) -> tuple[dict[str, float], dict[str, 
     except AttributeError as exc:
         raise TypeError("identification must be a qomni.ident.result.IdentificationResult or the path of "
                         f"identification.json, got {type(identification).__name__}") from exc
+    wrong = identification.not_physical() if hasattr(identification, "not_physical") else []
+    if wrong:
+        raise ValueError(f"the identified model is not physical ({', '.join(wrong)}): an FMU of it would "
+                         "simulate no vehicle; identify with --estimator consistent")
     return values, dict(getattr(identification, "std", {}) or {})
 
 
@@ -78,7 +82,8 @@ def export_fmu(spec: ModelSpec, identification: "IdentificationResult | str | os
     Raises:
         ValueError: fmi_version not 2 or 3 (or not one of ``spec.fmi_versions``: the plant-can model is
             FMI 3.0 only), ``out`` without the ``.fmu`` suffix, bad identifier,
-            non-finite parameters, i_G or eps <= 0.
+            non-finite parameters, a model that is not physical
+            (:meth:`~qomni.ident.result.IdentificationResult.not_physical`), i_G or eps <= 0.
         TypeError: ``identification`` of a wrong type.
         qomni.ident.rundir.RunDirectoryError: no identification.json at the given path.
         FmuExportError: compilation failed, an unknown platform, or ziglang missing for ``platforms``.

@@ -19,7 +19,8 @@ from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correl
                              identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
-                     b_w_source, file_sha256, load_identification, load_repaired_run, read_json, require_complete, write_json)
+                     RunDirectoryError, b_w_source, file_sha256, load_identification, load_repaired_run,
+                     read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .least_squares import IdentifiabilityError
@@ -129,6 +130,10 @@ def validate_run(run_dir: str | Path) -> ValidationResult:
     signals, sheet, meta = load_corrected_run(run_dir)
     require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     result = load_identification(run_dir)
+    if result.not_physical():
+        raise RunDirectoryError(f"{run_dir / IDENTIFICATION_JSON}: the model is not physical "
+                                f"({', '.join(result.not_physical())}); its forward simulation would not be "
+                                "a vehicle's: identify with --estimator consistent")
     blocks = validation_blocks(signals, sheet)
     validation = compare_generalized_torques(blocks, result)
     data = validation.to_json_dict()

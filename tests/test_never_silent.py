@@ -187,6 +187,18 @@ def test_a_dead_or_reversed_drive_signal_is_refused(run_dir, column, change, mes
         load_run(run_dir)
 
 
+def test_a_model_that_is_not_physical_is_refused_where_it_would_be_simulated(run_dir, tmp_path):
+    data = json.loads((run_dir / "identification.json").read_text())
+    data["parameters"]["m_ch"]["value"] = -800.0        # least squares can return it; no vehicle has it
+    (run_dir / "identification.json").write_text(json.dumps(data))
+    assert load_identification(run_dir).not_physical() == ["m_ch = -800"]
+    for args in (["export-fmu", run_dir, "--out", tmp_path / "m.fmu"], ["twin", run_dir / "identification.json",
+                                                                      "--out", tmp_path / "twin.toml"]):
+        result = _cli(*args)
+        assert result.exit_code == 2 and "m_ch = -800" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "m.fmu").exists() and not (tmp_path / "twin.toml").exists()
+
+
 # --- 5. user text is never console markup --------------------------------------------------------------
 def _printed(text: str, output: str) -> bool:
     """Whether ``text`` was printed, whatever the console's line wrapping did to its whitespace."""

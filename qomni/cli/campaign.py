@@ -180,6 +180,9 @@ def _print_parameters(result) -> None:
                       f"({result.estimator_info.get('iterations')} iterations); the values are the last iterate")
     if result.estimator_info.get("active_bounds"):
         console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
+    if result.not_physical():
+        console.print(f"warning: the estimate is not physical ({', '.join(result.not_physical())}); validation, "
+                      "FMU export and the twin refuse it: identify with --estimator consistent")
     spikes = result.spikes
     if spikes.get("total_corrupt"):
         columns = ", ".join(f"{k} {v}" for k, v in spikes["corrupt_samples"].items() if v)
