@@ -36,16 +36,25 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
     recorder writes one per SYNC, a missed TPDO as the value held from the cycle before.
 
     Raises:
-        RecordingError: a step has fewer rows than that, or rows of another step inside it (names the
-            step, its time span and the rows found).
+        RecordingError: the rows are not ``cycle_time`` apart (median spacing, 1 %), a step has fewer or
+            more rows than that, or rows of another step inside it (names the step, its time span and
+            the rows found).
     """
     time = np.asarray(signals.time, dtype=float)
+    if len(time) > 1:
+        spacing = float(np.median(np.diff(time)))
+        if abs(spacing - cycle_time) > 0.01 * cycle_time:
+            raise RecordingError(f"{path}: rows are {spacing:.6g} s apart, the data sheet's cycle time is "
+                                 f"{cycle_time:.6g} s: the recording and its metadata do not belong together")
     eps = 1e-6 * cycle_time
     for seg in segments:
         t0, t1 = seg["t_start"], seg["t_end"]
         inside = (time > t0 + eps) & (time <= t1 + eps)
         expected = int(round((t1 - t0) / cycle_time))
         found = int(inside.sum())
+        if found > expected + ROW_TOLERANCE:
+            raise RecordingError(f"{path}: step '{seg['name']}' ({t0:.3f}–{t1:.3f} s) has {found} rows, more "
+                                 f"than its {expected} cycles: rows are duplicated or the times are wrong")
         if found < expected - ROW_TOLERANCE:
             end = f"; the file ends at {time[-1]:.3f} s" if time[-1] < t1 - cycle_time else ""
             raise RecordingError(f"{path}: step '{seg['name']}' ({t0:.3f}–{t1:.3f} s) completed by the "

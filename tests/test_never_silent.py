@@ -172,6 +172,14 @@ def test_a_signals_file_cut_short_of_its_metadata_is_refused_naming_the_step(run
     assert result.exit_code == 2 and "cut short" in result.output and "Traceback" not in result.output
 
 
+def test_a_data_sheet_whose_cycle_time_is_not_the_recording_s_is_refused(run_dir):
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    meta["datasheet"]["drive"]["cycle_time"] = 0.004           # the rows are 2 ms apart
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"rows are 0.002 s apart, the data sheet's cycle time is 0.004 s"):
+        load_run(run_dir)
+
+
 @pytest.mark.parametrize("column, change, message", [
     ("motor_torque_rl [N m motor]", lambda v: 0.0, r"motor_torque_rl is 0.0 N m in every row"),
     ("motor_torque_fr [N m motor]", lambda v: -v, r"motor_torque_fr does not follow the commanded torque "
