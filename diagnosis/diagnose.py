@@ -358,9 +358,9 @@ def _steering_rule_rows(data: list[ChannelData], reference: list[ChannelData], l
 
 def _load_run(run_dir, model: IdentificationResult):
     """A run's signals with the glitch repair and the torque timing of ``model``'s fit (its torque lag
-    applied)."""
-    signals, sheet, meta, _ = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
-    return shift_torque(signals, model_lag(model)), sheet, meta
+    applied), its data sheet and its metadata with the glitch report added as ``"spikes"``."""
+    signals, sheet, meta, spikes = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
+    return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
@@ -397,7 +397,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if unknown:
         raise ValueError(f"no hypothesis named {', '.join(sorted(unknown))} to withhold")
     signals, sheet, meta = _load_run(data_dir, model)
-    data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps()}
+    data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps(),
+                "spikes": meta["spikes"]}
     lag = correlation_lag(sheet.drive.cycle_time)
     chans, steer = _channels_and_steering(signals, sheet, model)
     hold = None

@@ -268,12 +268,16 @@ def report_html(d: Diagnosis, gap: dict) -> str:
     _, overlay = figures.overlay_effects(d)
     ref = d.reference if d.reference != "none" else "none (each hypothesis tested against zero)"
     status = gap["data_run"].get("status", "not recorded") if gap.get("data_run") else "not recorded"
+    spikes = (gap.get("data_run") or {}).get("spikes") or {}
+    glitches = (f"; {spikes['total_corrupt']} isolated glitches "
+                f"{'repaired' if spikes.get('repaired') else 'kept'} before the fit"
+                if spikes.get("total_corrupt") else "")
     return f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>Sim-to-real gap</title>
 <style>{STYLE}</style></head><body>
 <h1>Sim-to-real gap diagnosis</h1>
 <p class="verdict"><b>Verdict: {html.escape(d.verdict)}</b></p>
 <p>Model: {html.escape(d.model_source)}<br>Data: {html.escape(d.data_source)} (run status:
-{html.escape(str(status))})<br>Reference: {html.escape(ref)}<br>Held out: {html.escape(d.holdout)}</p>
+{html.escape(str(status))}{html.escape(glitches)})<br>Reference: {html.escape(ref)}<br>Held out: {html.escape(d.holdout)}</p>
 <h2>Where: the residual over the campaign</h2>
 <p>Each channel's residual (measured − model) per campaign step; red: {html.escape(overlay or "no effect")};
 right: the same channel on the reference run, same scale.</p>

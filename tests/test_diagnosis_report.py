@@ -73,7 +73,8 @@ def diagnosis():
                      f"/runs/{HOSTILE}", {}, None, None, chans, (fp, fp), None, None,
                      {hostile_channel: 0.22, "rotation/theta_ch": 0.05},
                      {hostile_channel: 0.5, "rotation/theta_ch": 0.05},
-                     {"status": "complete", "steps_used": ["rotation"]}, f"/twin/{HOSTILE}",
+                     {"status": "complete", "steps_used": ["rotation"],
+                      "spikes": {"repaired": True, "total_corrupt": 3}}, f"/twin/{HOSTILE}",
                      ref, breakdown(ref, 10),
                      {"model": {hostile_channel: 0.05, "rotation/theta_ch": 0.05},
                       "with_effects": {hostile_channel: 0.07, "rotation/theta_ch": 0.05}}, ref_sim)
@@ -90,6 +91,7 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
         assert f"<h2>{heading}" in page
     assert "Reference: " + html.escape(f"/twin/{HOSTILE}") in page
     assert gap["reference"] == f"/twin/{HOSTILE}"
+    assert "3 isolated glitches repaired before the fit" in page and gap["data_run"]["spikes"]["total_corrupt"] == 3
     # The verdict and the overlaid effect are the accepted one; one residual figure per step.
     assert "Verdict: " + html.escape(f"unmodelled effect: viscous{HOSTILE}") in page
     assert html.escape(diagnosis.accepted[0].hypothesis.label + " (predicted)") in page
