@@ -5,7 +5,8 @@
         [--work DIR]
 
 RUN_DIR is a campaign of the embedded emulator (``qomni campaign --quick --out DIR``). For each kind of
-glitch a copy of the run gets it in ``--fraction`` of its rows (drawn at random), is identified with
+glitch a copy of the run gets it in ``--fraction`` of its rows (drawn at random; a stuck reading in bursts
+of 25 rows), is identified with
 wls, irls and consistent, with the glitches repaired (the default) and kept (``--keep-spikes``), and the
 largest error of m_ch, C_ch, d_vw, d_cw against the vehicle's truth is printed. The copies are written
 under --work (default: a temporary directory), one per kind, replaced on every run.
@@ -51,7 +52,11 @@ KINDS = {
                  lambda v, rng: 0.0),
     "any_column": ("one random column × U(−5, 5) + N(0, 5)", _one(TORQUE + POSITION + VELOCITY + ALPHA),
                    lambda v, rng: v * rng.uniform(-5, 5) + rng.normal(0, 5)),
+    "torque_stuck": ("torque actual of one drive stuck at +6 N m for 50 ms (25 rows)", _one(TORQUE),
+                     lambda v, rng: 6.0),
 }
+#: kind → rows each glitch spans (1 where not listed); a burst hits the same columns in each of its rows
+BURST = {"torque_stuck": 25}
 
 
 def glitched_copy(run_dir: Path, dest: Path, kind: str, fraction: float, seed: int) -> None:
@@ -64,9 +69,13 @@ def glitched_copy(run_dir: Path, dest: Path, kind: str, fraction: float, seed: i
     at = {name: i for i, name in enumerate(head)}
     rng = np.random.default_rng(seed)
     _, columns, value = KINDS[kind]
-    for r in rng.choice(len(body), size=int(fraction * len(body)), replace=False):
-        for name in columns(rng):
-            body[r][at[name]] = repr(float(value(float(body[r][at[name]]), rng)))
+    span = BURST.get(kind, 1)
+    starts = rng.choice(len(body) - span, size=max(int(fraction * len(body) / span), 1), replace=False)
+    for start in starts:
+        names = columns(rng)
+        for r in range(start, start + span):
+            for name in names:
+                body[r][at[name]] = repr(float(value(float(body[r][at[name]]), rng)))
     with open(dest / "signals.csv", "w", newline="") as f:
         csv.writer(f, lineterminator="\n").writerows([head, *body])
 
@@ -78,6 +87,7 @@ def main(argv=None) -> int:
     parser.add_argument("--fraction", type=float, default=0.01)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--work", type=Path, default=None)
+    parser.add_argument("--kinds", nargs="*", default=list(KINDS), choices=list(KINDS), help="kinds to run")
     args = parser.parse_args(argv)
     truth = load_description(args.vehicle).truth
     work = args.work or Path(tempfile.mkdtemp(prefix="qomni_glitches_"))
@@ -91,7 +101,8 @@ def main(argv=None) -> int:
           f"{100 * error(args.run_dir, 'wls', True):.1f} % (wls)")
     print("| glitch in {:.0%} of the rows | ".format(args.fraction) + " | ".join(header) + " |")
     print("|---" * (len(header) + 1) + "|")
-    for kind, (description, _, _) in KINDS.items():
+    for kind in args.kinds:
+        description = KINDS[kind][0]
         dest = work / kind
         glitched_copy(args.run_dir, dest, kind, args.fraction, args.seed)
         cells = [f"{100 * error(dest, e, repair):.1f} %" for repair in (True, False) for e in ESTIMATORS]
