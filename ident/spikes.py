@@ -168,9 +168,8 @@ def _position_velocity_disagreement(signals: Signals) -> np.ndarray:
     σ_c its robust scale over the run (at least the position's quantum), and so do the two samples
     that make it: a glitch in either signal leaves the other behind, a real fast motion moves both."""
     x, v = np.asarray(signals.motor_position, float), np.asarray(signals.motor_velocity, float)
-    n = len(x)
     out = np.zeros(x.shape, dtype=bool)
-    if n < 3:
+    if len(x) < 3:
         return out
     ts = float(np.median(np.diff(signals.time)))
     d = np.diff(x, axis=0)
@@ -178,9 +177,7 @@ def _position_velocity_disagreement(signals: Signals) -> np.ndarray:
         vj = v[:, j]
         guesses = np.column_stack([vj[1:], vj[:-1], 0.5 * (vj[1:] + vj[:-1])]) * ts
         gaps = np.abs(d[:, j, None] - guesses)                          # per difference d_t, t = 1..N-1
-        gap = gaps[:, int(np.argmin(np.median(gaps, axis=0)))]          # the drive's convention
-        scale = max(MAD_TO_SIGMA * float(np.median(gap)), _quantum(d[:, j]))
-        bad = gap > K * scale
+        bad = _far(gaps[:, int(np.argmin(np.median(gaps, axis=0)))], _quantum(d[:, j]))   # drive's convention
         out[1:, j] |= bad                                               # sample t ends d_t
         out[:-1, j] |= bad                                              # sample t-1 starts it
     return out
@@ -205,8 +202,7 @@ def _torque_command_disagreement(signals: Signals) -> np.ndarray:
     out = np.ones(torque.shape, dtype=bool)
     if n < 3:
         return out
-    ts = float(np.median(np.diff(signals.time)))
-    lags = range(-2, int(round(TORQUE_COMMAND_LAG / ts)) + 1)
+    lags = range(-2, int(round(TORQUE_COMMAND_LAG / float(np.median(np.diff(signals.time))))) + 1)
     for j in range(torque.shape[1]):
         c = command[:, j]
         if np.ptp(c) == 0:
@@ -217,9 +213,14 @@ def _torque_command_disagreement(signals: Signals) -> np.ndarray:
                 gap[lag:] = np.minimum(gap[lag:], np.abs(torque[lag:, j] - c[:n - lag]))
             else:
                 gap[:lag] = np.minimum(gap[:lag], np.abs(torque[:lag, j] - c[-lag:]))
-        scale = max(MAD_TO_SIGMA * float(np.median(gap)), _quantum(np.diff(torque[:, j])))
-        out[:, j] = gap > K * scale
+        out[:, j] = _far(gap, _quantum(np.diff(torque[:, j])))
     return out
+
+
+def _far(gap: np.ndarray, quantum: float) -> np.ndarray:
+    """Where a distance between partners is more than K times its robust scale over the run (1.4826·its
+    median: most samples agree), at least the signal's quantum."""
+    return gap > K * max(MAD_TO_SIGMA * float(np.median(gap)), quantum)
 
 
 def _column_name(name: str, j: int) -> str:
