@@ -207,6 +207,23 @@ def test_a_model_that_is_not_physical_is_refused_where_it_would_be_simulated(run
     assert not (tmp_path / "m.fmu").exists() and not (tmp_path / "twin.toml").exists()
 
 
+def test_a_campaign_whose_estimate_is_not_physical_keeps_it_and_skips_the_validation(run_dir, monkeypatch, capsys):
+    import qomni.cli.campaign as campaign_cli
+    import qomni.ident.identify as identify_module
+
+    data = json.loads((run_dir / "identification.json").read_text())
+    data["parameters"]["d_vl"]["value"] = -1.3                  # what WLS gave one blind-suite case
+    (run_dir / "identification.json").write_text(json.dumps(data))
+    monkeypatch.setattr(identify_module, "identify_run", lambda *a, **k: load_identification(run_dir))
+    plotted = []
+    monkeypatch.setattr(campaign_cli, "_plots", lambda run, result, validation: plotted.append(validation))
+    campaign_cli._identify_and_report(run_dir, "wls", 0.0)       # no SystemExit: the recording stands
+    assert plotted == [None]                                     # Fig. 5 only
+    out = "".join(capsys.readouterr().out.split())
+    assert "validationskipped:themodelisnotphysical(d_vl=-1.3)" in out and "--estimatorconsistent" in out
+    assert not (run_dir / "validation.json").exists()
+
+
 # --- 5. user text is never console markup --------------------------------------------------------------
 def _printed(text: str, output: str) -> bool:
     """Whether ``text`` was printed, whatever the console's line wrapping did to its whitespace."""

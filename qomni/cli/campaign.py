@@ -156,6 +156,12 @@ def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
 
     result = guarded(lambda: _identification_errors(lambda: identify_run(run_dir, torque_lag=torque_lag, estimator=estimator)))
     _print_parameters(result)
+    if result.not_physical():
+        # the recording and identification.json stand; a forward simulation of this model would not
+        console.print(f"validation skipped: the model is not physical ({', '.join(result.not_physical())}); "
+                      f"run 'qomni identify {run_dir} --estimator consistent', then 'qomni validate {run_dir}'")
+        _plots(run_dir, result, None)
+        return
     validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
     _print_validation(validation)
     _plots(run_dir, result, validation)
@@ -226,6 +232,8 @@ def _plots(run_dir: Path, result, validation) -> None:
     torque_comparison(identification_blocks(signals, sheet), times, result,
                       run_dir / FIG_IDENTIFICATION,
                       "Identification experiment: generalized torques (cf. paper Fig. 5)")
+    if validation is None:
+        return
     torque_comparison(validation_blocks(signals, sheet), times, result,
                       run_dir / FIG_VALIDATION,
                       "Validation experiment (lane change): generalized torques (cf. paper Fig. 6)",
