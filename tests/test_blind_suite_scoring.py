@@ -134,6 +134,31 @@ def test_wheel_friction_is_told_from_steering_friction_by_the_unsteered_steps():
     assert asked == []
 
 
+def test_the_unsteered_bar_is_half_the_z_the_wheel_level_predicts_where_that_is_below_5_percent():
+    """The unsteered steps' z is compared with the z the wheel variant's own level would give there: at
+    or above half of it (closer to the wheel joints' prediction than to none) the friction is placed in
+    the wheel joints even below the one-sided 5 % bar; a strong prediction keeps the 5 % bar."""
+    from types import SimpleNamespace as NS
+
+    from qomni.diagnosis.hypotheses.stribeck import tell_friction_joints_apart as _tell_friction_joints_apart
+
+    def pair(level, wheels_significant=False):
+        wheels = _stribeck("joints=wheels", wheels_significant, v_s=0.05)
+        steering = _stribeck("joints=steering", True)
+        wheels.fit = NS(nonlinear=0.05, theta=np.array([level]), theta0=np.array([0.0]))
+        return wheels, steering
+
+    wheels, steering = pair(0.2)                    # predicts z = 0.2/0.1 = 2.0 there: bar 1.0
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: 1.3, None, lambda v_s: 0.1)
+    assert wheels.significant and not steering.significant
+    wheels, steering = pair(0.2, True)              # the unsteered level nearer none than the prediction
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: 0.9, None, lambda v_s: 0.1)
+    assert steering.significant and not wheels.significant and "z = 0.9 < 1)" in wheels.notes[0]
+    wheels, steering = pair(1.0, True)              # predicts z = 10: the 5 % bar holds
+    _tell_friction_joints_apart([steering, wheels], lambda v_s: 1.3, None, lambda v_s: 0.1)
+    assert steering.significant and not wheels.significant and "< 1.645)" in wheels.notes[0]
+
+
 def test_wheel_variant_alone_significant_is_placed_in_the_steering_joints_when_unsteered_steps_lack_it():
     """Only the wheel variant passes the steering steps' test, but the unsteered steps hold no more of it
     than the reference run: the friction is established, not in the wheel joints -> steering variant,
