@@ -25,7 +25,9 @@ from .campaign import CampaignAborted
 from .control_design import design_pd
 from .fourier import design_fourier_trajectory
 from .least_squares import RANK_TOL, lstsq, newey_west_cov, rms
+from .plausibility import check_drives
 from .recording import SignalWriter, read_signals
+from .spikes import repair_spikes
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
 from .regressor_rows import applied_torque_at_samples, correlation_lag
 from .rundir import METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, write_json
@@ -94,9 +96,18 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
 def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: float = 0.0) -> SingleAxisResult:
     """Fit B_w, d_vw, d_cw per wheel from ``run_dir/single_axis`` and write ``single_axis.json``.
 
-    ``torque_lag`` (s): the drives' torque-report lag (:mod:`.torque_timing`), corrected before the fit."""
+    ``torque_lag`` (s): the drives' torque-report lag (:mod:`.torque_timing`), corrected before the fit.
+    The recording is checked as a campaign's is (:func:`.plausibility.check_drives`) and its isolated
+    glitches repaired (:mod:`.spikes`, reported as ``spikes`` in single_axis.json).
+
+    Raises: RecordingError: the recording is invalid, a drive's signals are dead or disagree, or a column
+    is more corrupt than single glitches."""
     run_dir = Path(run_dir)
-    sig = shift_torque(read_signals(run_dir / SINGLE_AXIS_DIR / SIGNALS), torque_lag)
+    path = run_dir / SINGLE_AXIS_DIR / SIGNALS
+    sig = read_signals(path)
+    check_drives(sig, str(path))
+    sig, spikes = repair_spikes(sig, str(path))
+    sig = shift_torque(sig, torque_lag)
     d = sheet.drive
     _, beta_dot, beta_ddot = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, d.cycle_time)
     torque = filtering.zero_phase_lowpass(applied_torque_at_samples(sig.motor_torque), d.cycle_time)
@@ -104,6 +115,7 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: floa
                                   correlation_lag=correlation_lag(d.cycle_time))
     data = result.to_json_dict()
     data["torque_lag"] = {"value": float(torque_lag), "unit": "s"}
+    data["spikes"] = spikes.to_json_dict()
     write_json(run_dir / SINGLE_AXIS_JSON, data)
     return result
 

@@ -97,6 +97,17 @@ def test_single_axis_into_a_directory_that_holds_one_is_refused_without_force(tm
     assert (tmp_path / "single_axis" / "signals.csv").read_text() == "old run\n"
 
 
+def test_a_single_axis_recording_with_a_frozen_encoder_is_refused_and_glitches_are_reported(tmp_path):
+    from qomni.ident.single_axis import identify_single_axis
+
+    assert _cli("single-axis", "--out", tmp_path).exit_code == 0
+    assert json.loads((tmp_path / "single_axis.json").read_text())["spikes"]["total_corrupt"] == 0
+    recording = tmp_path / "single_axis"
+    _edit_column(recording, "motor_position_rr [rad motor]", lambda v: 1.0)
+    with pytest.raises(RecordingError, match=r"single_axis/signals.csv: motor_position_rr does not move with"):
+        identify_single_axis(tmp_path, DataSheet.load())
+
+
 @pytest.mark.parametrize("value", [-0.121, 0.0, float("nan")])
 def test_an_impossible_single_axis_b_w_is_refused(run_dir, value):
     (run_dir / "single_axis.json").write_text(json.dumps({"pooled": {"B_w": {"value": value}}}))
