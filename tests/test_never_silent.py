@@ -183,6 +183,21 @@ def test_a_signals_file_cut_short_of_its_metadata_is_refused_naming_the_step(run
     assert result.exit_code == 2 and "cut short" in result.output and "Traceback" not in result.output
 
 
+def test_a_complete_step_under_a_drifting_jittery_clock_is_complete():
+    # a master whose SYNC period is 0.3 % off the nominal 2 ms, time stamps jittering by 50 µs: 30000 rows
+    # over the step's 60.2 s are all there; two thirds of them are not
+    from types import SimpleNamespace
+
+    from qomni.ident.plausibility import check_coverage
+
+    time = np.cumsum(np.full(30000, 0.002006) + np.random.default_rng(0).normal(0, 5e-5, 30000))
+    step = [{"name": "straight", "t_start": 0.0, "t_end": float(time[-1])}]
+    check_coverage(SimpleNamespace(time=time, step=np.array(["straight"] * 30000)), step, 0.002, "run")
+    with pytest.raises(RecordingError, match="has 20000 of its 30000 rows"):
+        check_coverage(SimpleNamespace(time=time[:20000], step=np.array(["straight"] * 20000)), step, 0.002,
+                       "run")
+
+
 def test_a_data_sheet_whose_cycle_time_is_not_the_recording_s_is_refused(run_dir):
     meta = json.loads((run_dir / "metadata.json").read_text())
     meta["datasheet"]["drive"]["cycle_time"] = 0.004           # the rows are 2 ms apart
