@@ -35,10 +35,9 @@ The test, per signal column x (N,) (:func:`find_spikes`):
 
 Corrupt samples are replaced by the straight line between x_{i−1} and x_k (:func:`repair_spikes`), and
 the count per column is reported. K = 8: under Gaussian noise a deviation beyond 8 σ has probability
-1.2·10⁻¹⁵ per sample, so a clean recording is left as it is up to a few kinks of d that a quantised
-signal rounds into a returning pair, repaired by less than a count (``tests/test_spikes.py``; the
-prototype's quick and full campaigns: 3 and 7 samples of 10⁵–2·10⁵ per column set), while a glitch worth repairing (one that moves a parameter) is
-hundreds of σ high. More than :data:`MAX_CORRUPT_FRACTION` of a column corrupt is not a few glitches:
+1.2·10⁻¹⁵ per sample, so a clean recording is left as it is (``tests/test_spikes.py``; the prototype's
+quick and full campaigns: no sample changed), while a glitch worth repairing (one that moves a
+parameter) is hundreds of σ high. More than :data:`MAX_CORRUPT_FRACTION` of a column corrupt is not a few glitches:
 :class:`~.recording.RecordingError`.
 """
 from __future__ import annotations
@@ -50,8 +49,8 @@ from scipy.ndimage import median_filter
 
 from .recording import WHEELS, RecordingError, Signals
 
-#: Half-width of the running median of the differences (samples): the longest burst of corrupt samples
-#: that can be found is H (its H + 1 flagged differences are then outvoted by H + 1 ≥ … clean ones).
+#: Half-width of the running median of the differences (samples), and the longest burst of corrupt
+#: samples the test is made for (bursts of 1…H are found in ``tests/test_spikes.py``).
 H = 5
 #: Half-width of the window of the local scale (samples): 0.2 s at 500 Hz, a few periods of the
 #: filter's 6 Hz band, so the scale follows the noise of each motion phase.
