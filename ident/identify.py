@@ -115,11 +115,12 @@ def single_axis_lag(run_dir: Path) -> float:
     return float(read_json(path).get("torque_lag", {}).get("value", 0.0))
 
 
-def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
+def load_corrected_run(run_dir: str | Path, model: IdentificationResult | None = None
+                       ) -> tuple[Signals, DataSheet, dict]:
     """:func:`load_repaired_run` (glitches repaired unless the identification kept them) with the torque
-    corrected by the lag of ``identification.json``."""
+    corrected by the lag of ``model`` (default: the run's ``identification.json``)."""
     run_dir = Path(run_dir)
-    model = load_identification(run_dir)
+    model = load_identification(run_dir) if model is None else model
     signals, sheet, meta, _ = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
     return shift_torque(signals, model_lag(model)), sheet, meta
 
@@ -127,9 +128,9 @@ def load_corrected_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
 def validate_run(run_dir: str | Path) -> ValidationResult:
     """Validate ``identification.json`` on the lane change and write ``validation.json``."""
     run_dir = Path(run_dir)
-    signals, sheet, meta = load_corrected_run(run_dir)
-    require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     result = load_identification(run_dir)
+    signals, sheet, meta = load_corrected_run(run_dir, result)
+    require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     if result.not_physical():
         raise RunDirectoryError(f"{run_dir / IDENTIFICATION_JSON}: the model is not physical "
                                 f"({', '.join(result.not_physical())}); its forward simulation would not be "

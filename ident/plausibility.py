@@ -75,6 +75,14 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
                                  f"({t0:.3f}–{t1:.3f} s): the recording does not match its metadata")
 
 
+def velocity_conventions(v: np.ndarray) -> np.ndarray:
+    """(3, N − 1): a drive's velocity actual (N,) at the end of each cycle, at its start, and their mean,
+    the three ways a drive may time-stamp 0x606C against the position change x_t − x_{t−1} (multiply by
+    T_s to compare)."""
+    v = np.asarray(v, dtype=float)
+    return np.stack([v[1:], v[:-1], 0.5 * (v[1:] + v[:-1])])
+
+
 def _robust_r2(d: np.ndarray, rate: np.ndarray) -> float:
     """1 − (median |d − rate| / median |rate|)² over the rows where either moves: R² with medians for
     mean squares, so that the few glitches :mod:`.spikes` repairs later do not decide it (a frozen
@@ -111,8 +119,7 @@ def check_drives(signals: Signals, path: str) -> None:
         if not np.any(d) and not np.any(v):
             raise RecordingError(f"{path}: motor_position_{wheel} and motor_velocity_{wheel} never change: "
                                  f"drive {wheel} did not report (or its wheel never turned)")
-        rates = (v[1:], v[:-1], 0.5 * (v[1:] + v[:-1]))
-        r2 = max(_robust_r2(d, ts * rate[consecutive]) for rate in rates)
+        r2 = max(_robust_r2(d, ts * rate[consecutive]) for rate in velocity_conventions(v))
         if r2 < MIN_POSITION_VELOCITY_R2:
             raise RecordingError(f"{path}: motor_position_{wheel} does not move with motor_velocity_{wheel} "
                                  f"(R² = {r2:.2f} of the position's change per cycle against T_s × velocity, "
@@ -130,5 +137,5 @@ def check_drives(signals: Signals, path: str) -> None:
                                      "expected): a reversed torque polarity or another drive's value")
 
 
-__all__ = ["check_coverage", "check_drives", "MIN_SPAN", "ROW_TOLERANCE", "MIN_POSITION_VELOCITY_R2",
-           "MIN_TORQUE_CORRELATION"]
+__all__ = ["check_coverage", "check_drives", "velocity_conventions", "MIN_SPAN", "ROW_TOLERANCE",
+           "MIN_POSITION_VELOCITY_R2", "MIN_TORQUE_CORRELATION"]

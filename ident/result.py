@@ -91,14 +91,13 @@ class IdentificationResult:
         return np.array([self.std[n] for n in P1_NAMES])
 
     def not_physical(self) -> list[str]:
-        """The parameters no vehicle can have, as ``"m_ch = -800"`` texts: an inertia or mass (C_l,
+        """The parameters no vehicle can have, as ``"m_ch = -800.0"`` texts: an inertia or mass (C_l,
         C_r, m_ch, C_ch) not positive, a viscous or Coulomb coefficient negative. Least squares returns
         them where the campaign leaves a parameter near zero; ``--estimator consistent`` bounds them.
         Empty for a physical model."""
-        out = [f"{n} = {self.values[n]:.6g}" for n in ("C_l", "C_r", "m_ch", "C_ch") if not self.values[n] > 0]
-        out += [f"{n} = {self.values[n]:.6g}" for n in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw")
-                if self.values[n] < 0]
-        return out
+        inertias = [n for n in ("C_l", "C_r", "m_ch", "C_ch") if not self.values[n] > 0]
+        frictions = [n for n in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw") if self.values[n] < 0]
+        return [f"{n} = {float(self.values[n])!r}" for n in inertias + frictions]
 
     def as_dict(self) -> dict[str, float]:
         """{name: value} for all 11 parameters."""

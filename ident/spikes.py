@@ -47,6 +47,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.ndimage import median_filter
 
+from .plausibility import velocity_conventions
 from .recording import WHEELS, RecordingError, Signals
 
 #: Half-width of the running median of the differences (samples), and the longest burst of corrupt
@@ -173,9 +174,7 @@ def _position_velocity_disagreement(signals: Signals) -> np.ndarray:
     ts = float(np.median(np.diff(signals.time)))
     d = np.diff(x, axis=0)
     for j in range(x.shape[1]):
-        vj = v[:, j]
-        guesses = np.column_stack([vj[1:], vj[:-1], 0.5 * (vj[1:] + vj[:-1])]) * ts
-        gaps = np.abs(d[:, j, None] - guesses)                          # per difference d_t, t = 1..N-1
+        gaps = np.abs(d[:, j, None] - ts * velocity_conventions(v[:, j]).T)   # per d_t, t = 1..N-1
         bad = _far(gaps[:, int(np.argmin(np.median(gaps, axis=0)))], _quantum(d[:, j]))   # drive's convention
         out[1:, j] |= bad                                               # sample t ends d_t
         out[:-1, j] |= bad                                              # sample t-1 starts it

@@ -54,12 +54,12 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     """
     prototype = VehicleDescription.load()
     truth = Truth(**{name: float(value) for name, value in zip(PARAMETER_NAMES, result.p)})
-    for name in ("C_l", "C_r", "m_ch", "C_ch", "B_w"):
-        if not getattr(truth, name) > 0:
-            raise TwinError(f"{source}: identified {name} = {getattr(truth, name)} is not a positive inertia")
-    for name in ("d_vl", "d_cl", "d_vr", "d_cr", "d_vw", "d_cw"):
-        if getattr(truth, name) < 0:
-            raise TwinError(f"{source}: identified {name} = {getattr(truth, name)} is a negative friction")
+    if not truth.B_w > 0:
+        raise TwinError(f"{source}: B_w = {truth.B_w} is not a positive inertia")
+    wrong = result.not_physical()
+    if wrong:
+        raise TwinError(f"{source}: identified {', '.join(wrong)}: not physical (an inertia or mass not "
+                        "positive, or a negative friction)")
     body = replace(prototype.body, wheel_transverse_inertia=max(prototype.body.wheel_transverse_inertia,
                                                                 truth.B_w / 2))
     description = replace(prototype, datasheet=replace(sheet, name=f"twin of {sheet.name}"), truth=truth,

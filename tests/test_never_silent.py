@@ -225,7 +225,7 @@ def test_a_model_that_is_not_physical_is_refused_where_it_would_be_simulated(run
     data = json.loads((run_dir / "identification.json").read_text())
     data["parameters"]["m_ch"]["value"] = -800.0        # least squares can return it; no vehicle has it
     (run_dir / "identification.json").write_text(json.dumps(data))
-    assert load_identification(run_dir).not_physical() == ["m_ch = -800"]
+    assert load_identification(run_dir).not_physical() == ["m_ch = -800.0"]
     for args in (["export-fmu", run_dir, "--out", tmp_path / "m.fmu"], ["twin", run_dir / "identification.json",
                                                                       "--out", tmp_path / "twin.toml"]):
         result = _cli(*args)

@@ -227,7 +227,7 @@ def _plots(run_dir: Path, result, validation) -> None:
     from qomni.ident.plots import torque_comparison
     from qomni.ident.regressor_rows import identification_blocks, validation_blocks
 
-    signals, sheet, _ = guarded(lambda: load_corrected_run(run_dir))
+    signals, sheet, _ = guarded(lambda: load_corrected_run(run_dir, result))
     times = {name: signals.of_step(name).time for name in signals.steps()}
     torque_comparison(identification_blocks(signals, sheet), times, result,
                       run_dir / FIG_IDENTIFICATION,
