@@ -11,8 +11,9 @@ far stays on disk.
 """
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
@@ -26,7 +27,7 @@ from .probe import DeadTimeProbe
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .recording import SignalWriter
-from .rundir import METADATA, SIGNALS, write_json
+from .rundir import METADATA, RUN_FORMAT, SIGNALS, write_json
 
 IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
 VALIDATION_STEP = "lane_change"
@@ -107,6 +108,33 @@ class CampaignSettings:
     steer_period: float = 4.0  # s, base period of the steering excitation (repeated over the step)
     chassis_period: float = 5.0  # s, base period of the straight and rotation excitation
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        """Refuse a setting no campaign can drive (a run's metadata.json edited or from another tool).
+
+        Raises: ValueError naming the key: not a number (a string, a boolean), not finite, an integer
+        setting with a fraction, a duration, limit or period ≤ 0 (the arcs' duration and the rest and
+        alignment times may be 0), fewer than one lane change or harmonic."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"settings.{f.name} must be a finite number, got {value!r}")
+            if f.type in ("int", int):
+                if value != int(value):
+                    raise ValueError(f"settings.{f.name} must be an integer, got {value!r}")
+                object.__setattr__(self, f.name, int(value))
+            else:
+                object.__setattr__(self, f.name, float(value))
+        may_be_zero = {"arc_duration", "align_duration", "rest_duration", "seed"}
+        at_least_one = {"lane_changes", "n_harmonics"}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in at_least_one and value < 1:
+                raise ValueError(f"settings.{f.name} must be >= 1, got {value!r}")
+            if f.name in may_be_zero and value < 0:
+                raise ValueError(f"settings.{f.name} must be >= 0, got {value!r}")
+            if f.name not in may_be_zero | at_least_one and not value > 0:
+                raise ValueError(f"settings.{f.name} must be > 0, got {value!r}")
 
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":
@@ -422,7 +450,7 @@ class Campaign:
     def _metadata(self) -> dict:
         sheet = self.sheet
         return {
-            "format": "qomni-run/1",
+            "format": RUN_FORMAT,
             "vehicle": sheet.name,
             "source": self.source,
             "started": time.strftime("%Y-%m-%dT%H:%M:%S"),

@@ -15,13 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from qomni.conventions import WHEELS
-from qomni.datasheet import DataSheet, Drive, Geometry, Nominal
+from qomni.datasheet import DataSheet, DataSheetError
 
 from .result import IdentificationResult
 from .recording import Signals, read_signals
 from .plausibility import check_coverage, check_drives
 
 METADATA = "metadata.json"
+#: The run-directory format this version writes and reads (metadata.json ``format``).
+RUN_FORMAT = "qomni-run/1"
 SIGNALS = "signals.csv"
 IDENTIFICATION_JSON = "identification.json"
 #: A digital twin reference run's stamp: what the twin and its campaign were made from (qomni.twin).
@@ -106,6 +108,9 @@ def completed_steps(meta: dict, source: str) -> list[dict]:
         if not (math.isfinite(t0) and math.isfinite(t1) and t0 <= t1):
             raise RunDirectoryError(f"{source}: segments[{i}] ('{name}'): t_start {t0} must not exceed "
                                     f"t_end {t1}, both finite")
+        if k not in (1, 2, 3, 4):
+            raise RunDirectoryError(f"{source}: segments[{i}] ('{name}'): motion mode k = {k} is not one of "
+                                    "the paper's four (1 to 4)")
         out.append({"name": name, "k": k, "t_start": t0, "t_end": t1})
     return out
 
@@ -190,20 +195,21 @@ def complete_rows(signals: Signals, meta: dict, source: str) -> Signals:
 
 
 def datasheet_from_metadata(meta: dict, source: str) -> DataSheet:
-    """The data sheet stored in a run's metadata.
+    """The data sheet stored in a run's metadata (its ``datasheet`` entry), checked as a data-sheet file is.
 
     Raises:
-        RunDirectoryError: the entry is missing or incomplete.
+        RunDirectoryError: the metadata's ``format`` is not :data:`RUN_FORMAT`; the entry is missing, a
+            table or key is missing or unknown, a value is not a number or impossible (:meth:`DataSheet.from_tables`); the message names the file and key.
     """
+    if meta.get("format", RUN_FORMAT) != RUN_FORMAT:
+        raise RunDirectoryError(f"{source}: format {meta['format']!r} is not one this version reads ({RUN_FORMAT})")
     ds = meta.get("datasheet")
+    if not isinstance(ds, dict):
+        raise RunDirectoryError(f"{source}: 'datasheet' entry missing or not an object")
     try:
-        sheet = DataSheet(name=str(meta.get("vehicle", "vehicle")),
-                          geometry=Geometry(**ds["geometry"]), drive=Drive(**ds["drive"]),
-                          nominal=Nominal(**ds["nominal"]), source=source)
-    except (TypeError, KeyError) as exc:
-        raise RunDirectoryError(f"{source}: 'datasheet' entry missing or incomplete: {exc}") from None
-    sheet._check()
-    return sheet
+        return DataSheet.from_tables(ds, str(meta.get("vehicle", "vehicle")), f"{source} datasheet")
+    except DataSheetError as exc:
+        raise RunDirectoryError(str(exc)) from None
 
 
 def _measured(path: Path, data: dict, keys: tuple[str, ...], positive: bool,
@@ -288,5 +294,5 @@ def load_identification(path: str | Path) -> IdentificationResult:
     data = read_json(path)
     try:
         return IdentificationResult.from_json_dict(data)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RunDirectoryError(f"{path}: not an identification result ({type(exc).__name__}: {exc})") from None
+    except ValueError as exc:
+        raise RunDirectoryError(f"{path}: not an identification result: {exc}") from None

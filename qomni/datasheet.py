@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import astuple, dataclass, fields
 from importlib import resources
 from pathlib import Path
@@ -141,6 +142,13 @@ class DataSheet:
         name = vehicle.get("name", Path(source).stem)
         if not isinstance(name, str):
             raise DataSheetError(f"{source}: [vehicle] key 'name' must be a string, got {name!r}")
+        return cls.from_tables(data, name, source)
+
+    @classmethod
+    def from_tables(cls, data: Mapping, name: str, source: str) -> "DataSheet":
+        """The data sheet of the tables ``geometry``, ``drive`` and ``nominal`` of ``data`` (a parsed TOML
+        file, or the ``datasheet`` entry a run's metadata.json stores). Raises DataSheetError as
+        :meth:`load`."""
         sheet = cls(
             name=name,
             geometry=_section(data, "geometry", Geometry, source),
@@ -185,7 +193,7 @@ class DataSheet:
                 fail("nominal", key, "must be >= 0", getattr(n, key))
 
 
-def _section(data: dict, name: str, kind: type, source: str):
+def _section(data: Mapping, name: str, kind: type, source: str):
     if name not in data:
         raise DataSheetError(f"{source}: missing section [{name}]")
     table = data[name]

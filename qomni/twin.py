@@ -191,7 +191,7 @@ def _settings_of(meta: dict):
 
     try:
         return CampaignSettings(**{"lane_changes": 1, "arc_duration": 0.0, **meta.get("settings", {})})
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise TwinError(f"metadata.json settings: {exc}") from exc
 
 

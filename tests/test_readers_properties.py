@@ -2,6 +2,8 @@
 domain's one error type naming the file: never another exception, never a non-finite number."""
 from __future__ import annotations
 
+import copy
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -16,7 +18,9 @@ from qomni.emulator.description import DescriptionError, VehicleDescription
 from qomni.emulator.effects import EffectSet, EffectsError
 from qomni.hil.device.faults import FaultPlan, FaultPlanError
 from qomni.ident.recording import COLUMNS, RecordingError, read_signals
-from qomni.ident.rundir import RunDirectoryError, load_identification, read_json
+from qomni.conventions import P1_NAMES
+from qomni.ident.rundir import (RunDirectoryError, completed_steps, datasheet_from_metadata,
+                                      load_identification, read_json)
 
 SETTINGS = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 _numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**6, 10**6),
@@ -132,3 +136,88 @@ def test_read_json_names_the_file(tmp_path):
     path.write_text("[1, 2]")
     with pytest.raises(RunDirectoryError, match="metadata.json: expected a JSON object"):
         read_json(path)
+
+
+_RUN = Path(__file__).resolve().parent / "data" / "fmu_accuracy_run"
+_IDENTIFICATION = json.loads((_RUN / "identification.json").read_text())
+_METADATA = json.loads((_RUN / "metadata.json").read_text())
+_json_values = st.one_of(_numbers, st.none(), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
+
+
+def _replaced(data: dict, path: tuple, value) -> dict:
+    out = copy.deepcopy(data)
+    node = out
+    for key in path[:-1]:
+        node = node.setdefault(key, {}) if isinstance(node, dict) else node[key]
+    node[path[-1]] = value
+    return out
+
+
+_identification_keys = st.sampled_from(
+    [("parameters", n, "value") for n in (*P1_NAMES, "B_w")] + [("parameters", n, "std") for n in P1_NAMES]
+    + [("parameters", "m_ch"), ("parameters",), ("torque_lag", "value"), ("condition_number",),
+       ("velocity_threshold",), ("covariance", "matrix"), ("rows_used",), ("ls_first_pass", "m_ch", "value")])
+
+
+@SETTINGS
+@given(key=_identification_keys, value=_json_values)
+def test_identification_reader(tmp_path, key, value):
+    """A value of any JSON type at any key the model is built from: refused naming the file and the key,
+    or read with every parameter a finite float."""
+    path = tmp_path / "identification.json"
+    path.write_text(json.dumps(_replaced(_IDENTIFICATION, key, value)))
+    try:
+        result = load_identification(path)
+    except RunDirectoryError as exc:
+        assert "identification.json" in str(exc) and key[0] in str(exc)
+    else:
+        assert all(type(v) is float and math.isfinite(v) for v in (*result.values.values(), result.B_w))
+        assert all(type(v) is float and math.isfinite(v) and v >= 0 for v in result.std.values())
+
+
+@SETTINGS
+@given(table=st.sampled_from(["geometry", "drive", "nominal"]), pick=st.integers(0, 20), value=_json_values)
+def test_run_metadata_datasheet_reader(table, pick, value):
+    """The data sheet a run's metadata.json stores is checked as a data-sheet file is, and refused as a
+    run-directory error naming the file, the table and the key."""
+    keys = list(_METADATA["datasheet"][table])
+    key = keys[pick % len(keys)]
+    meta = _replaced(_METADATA, ("datasheet", table, key), value)
+    try:
+        sheet = datasheet_from_metadata(meta, "run/metadata.json")
+    except RunDirectoryError as exc:
+        assert "run/metadata.json" in str(exc) and f"[{table}] key '{key}'" in str(exc)
+    else:
+        assert all(math.isfinite(x) for x in (*sheet.nominal.p, sheet.drive.cycle_time, sheet.geometry.l))
+        assert all(x > 0 for x in (sheet.geometry.l, sheet.geometry.r, sheet.drive.i_G, sheet.nominal.m_ch))
+
+
+@SETTINGS
+@given(pick=st.integers(0, 40), value=_json_values)
+def test_campaign_settings_reader(pick, value):
+    """Settings read back from a run (the twin's campaign drives them): a number of the right kind and
+    range, or a ValueError naming the setting."""
+    from dataclasses import fields as dataclass_fields
+
+    from qomni.ident.campaign import CampaignSettings
+
+    names = [f.name for f in dataclass_fields(CampaignSettings)]
+    name = names[pick % len(names)]
+    try:
+        settings_ = CampaignSettings(**{name: value})
+    except ValueError as exc:
+        assert f"settings.{name}" in str(exc)
+    else:
+        got = getattr(settings_, name)
+        assert type(got) in (int, float) and math.isfinite(got) and got >= 0
+
+
+def test_unknown_run_format_refused():
+    with pytest.raises(RunDirectoryError, match="format 'qomni-run/9'"):
+        datasheet_from_metadata({**_METADATA, "format": "qomni-run/9"}, "metadata.json")
+
+
+def test_unknown_motion_mode_refused():
+    meta = _replaced(_METADATA, ("segments", 0, "k"), 7)
+    with pytest.raises(RunDirectoryError, match=r"segments\[0\].*k = 7"):
+        completed_steps(meta, "metadata.json")

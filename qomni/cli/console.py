@@ -20,14 +20,16 @@ def fail(message: str) -> None:
 
 
 def guarded(fn):
-    """``fn()``, or :func:`fail` with the message of a run-directory, recording or identifiability error."""
+    """``fn()``, or :func:`fail` with the message of a run-directory, recording, data-sheet or identifiability
+    error."""
+    from qomni.datasheet import DataSheetError
     from qomni.ident.least_squares import IdentifiabilityError
     from qomni.ident.rundir import RunDirectoryError
     from qomni.ident.recording import RecordingError
 
     try:
         return fn()
-    except (RunDirectoryError, RecordingError, IdentifiabilityError, FileNotFoundError) as exc:
+    except (RunDirectoryError, RecordingError, IdentifiabilityError, DataSheetError, FileNotFoundError) as exc:
         fail(str(exc))
 
 

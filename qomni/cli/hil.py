@@ -166,7 +166,7 @@ def decode(
     from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
     from qomni.ident.rundir import METADATA, SIGNALS, write_json
     from qomni.datasheet import DataSheet, DataSheetError
-    from qomni.ident.rundir import RunDirectoryError, completed_steps, datasheet_from_metadata, read_json
+    from qomni.ident.rundir import RUN_FORMAT, RunDirectoryError, completed_steps, datasheet_from_metadata, read_json
     from qomni.ident.recording import SignalWriter
 
     if not log.is_file():
@@ -223,7 +223,7 @@ def decode(
     if not meta:
         from dataclasses import asdict
 
-        meta = {"format": "qomni-run/1", "vehicle": sheet.name,
+        meta = {"format": RUN_FORMAT, "vehicle": sheet.name,
                 "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
                               "nominal": asdict(sheet.nominal)}, "segments": []}
     meta = dict(meta, source=f"decoded from {log}", decoded={
