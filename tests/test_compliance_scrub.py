@@ -92,14 +92,72 @@ def test_the_rotation_has_a_coefficient_of_its_own_at_most_full_sliding():
     rotation = STEERING_COMPLIANCE.columns(_straight_channel(0.5, base, step="rotation"), None)
     assert np.all(straight[:, 1] == 0) and np.any(straight[:, 0] != 0)
     assert np.all(rotation[:, 0] == 0) and np.allclose(rotation[:, 1], straight[:, 0])
-    assert STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-4]))
-    assert STEERING_COMPLIANCE.physical(np.array([5e-4, 5.05e-4]))    # a full slide, within fit error
-    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 8e-4]))   # far more drag than a sliding wheel
-    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-3]))   # the drives fighting stuck joints
-    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, -1e-4]))
+    assert STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-4, 1.0]))
+    assert STEERING_COMPLIANCE.physical(np.array([5e-4, 5.05e-4, 1.0]))    # a full slide, within fit error
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 8e-4, 1.0]))   # far more drag than a sliding wheel
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-3, 1.0]))   # the drives fighting stuck joints
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, -1e-4, 1.0]))
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-4, -0.5]))  # the odometry error's opposite
+    assert not STEERING_COMPLIANCE.physical(np.array([5e-4, 2e-4, 3.0]))
 
 
 def test_a_stiffer_linkage_than_alignment_tolerance_is_not_relevant():
-    assert not STEERING_COMPLIANCE.physical(np.array([-1e-4, 0.0]))
-    assert not plausible(STEERING_COMPLIANCE, np.array([5e-5, 0.0]))   # 20 kN m/rad
-    assert plausible(STEERING_COMPLIANCE, np.array([5e-4, 0.0]))       # 2 kN m/rad
+    assert not STEERING_COMPLIANCE.physical(np.array([-1e-4, 0.0, 1.0]))
+    assert not plausible(STEERING_COMPLIANCE, np.array([5e-5, 0.0, 1.0]))   # 20 kN m/rad
+    assert plausible(STEERING_COMPLIANCE, np.array([5e-4, 0.0, 1.0]))       # 2 kN m/rad
+
+
+def _toed_straight_step(toe_rolling: bool, alpha_dot: float = 0.0, n: int = 1500):
+    """A straight (mode 2) step at a varying speed whose rear units turn by δ(t) about their steering
+    axes, as a soft linkage toes them: the rear wheels roll by a·δ̇/r more than the rigid kinematics,
+    and the chassis velocity is the recording pipeline's least-squares odometry of all four wheels. Returns
+    the channel of x_ch (``y`` the true generalized force of the model, ``model`` the model at the
+    measured motion) and the (n, 4) extra rolling, rad/s."""
+    from qomni.ident import dynamics, odometry
+    from qomni.ident.regressor_rows import COULOMB_COLUMNS
+
+    t = np.arange(n) * TS
+    alpha = np.zeros((n, 2))
+    H = kinematics.H(2, alpha, G, alpha_v=np.zeros(n))
+    x_dot = 0.4 + 0.2 * np.sin(2 * np.pi * 0.7 * t)
+    toe_rate = np.column_stack([0.15 * np.cos(2 * np.pi * 1.3 * t), -0.1 * np.cos(2 * np.pi * 0.9 * t + 0.4)])  # δ ≈ 0.02 rad
+    extra = np.zeros((n, 4))
+    if toe_rolling:
+        extra[:, 1], extra[:, 3] = G.a / G.r * toe_rate[:, 0], G.a / G.r * toe_rate[:, 1]
+    qd_true = H[:, :, 1] * x_dot[:, None]
+    qd_true[:, 3:5] = alpha_dot
+    qd_true[:, 5:9] += extra
+    qd = qd_true.copy()
+    qd[:, :3] = odometry.chassis_velocity(alpha, qd[:, 3:5], qd[:, 5:9], G)
+    qdd_true, qdd = (np.gradient(x, TS, axis=0, edge_order=2) for x in (qd_true, qd))
+    p = P.copy()
+    p[COULOMB_COLUMNS] = 0.0            # sign functions of rates far above the error: left out
+    q = np.zeros((n, 9))
+    y = dynamics.reduced_regressor(2, q, qd_true, qdd_true, G)[:, 1, :] @ p
+    model = dynamics.reduced_regressor(2, q, qd, qdd, G)[:, 1, :] @ p
+    st = SimpleNamespace(k=2, step="straight", time=t, q=q, qd=qd, qdd=qdd, qd_coulomb=qd.copy(),
+                         motor_torque=np.zeros((n, 4)), cycle_time=TS, omega_g=filtering.OMEGA_G)
+    keep = np.ones(n, dtype=bool)
+    ctx = StepContext(st, SHEET, p, np.zeros((n, 3)), H, np.zeros((n, 2)), keep, np.zeros(n, dtype=bool))
+    return ChannelData("straight/x_ch", "torque", "N", 1, y, np.zeros((n, 10)), model, qd[:, 0],
+                       qdd[:, 0], keep, ctx), extra
+
+
+def test_odometry_column_undoes_the_toe_rolling_the_odometry_read_as_chassis_motion():
+    """The rear wheels' toe rolling passes into the least-squares chassis velocity; the model evaluated
+    at that motion misses the true generalized force by exactly the third column (coefficient 1)."""
+    from qomni.diagnosis.hypotheses.steering_compliance import _rear_toe_rolling
+
+    ch, extra = _toed_straight_step(toe_rolling=True)
+    assert np.allclose(_rear_toe_rolling(ch.context), extra, atol=1e-9)
+    residual = ch.y - ch.model
+    column = STEERING_COMPLIANCE.columns(ch, None)[:, 2]
+    assert np.std(residual) > 5.0                          # N: the error is there to be removed
+    assert np.allclose(column, residual, atol=1e-6 * np.abs(residual).max())
+
+
+def test_odometry_column_is_zero_without_toe_rolling_and_where_the_steering_moves():
+    clean, _ = _toed_straight_step(toe_rolling=False)
+    assert np.abs(STEERING_COMPLIANCE.columns(clean, None)[:, 2]).max() < 1e-9
+    steering, _ = _toed_straight_step(toe_rolling=True, alpha_dot=0.3)
+    assert np.all(STEERING_COMPLIANCE.columns(steering, None)[:, 2] == 0)

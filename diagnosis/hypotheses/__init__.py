@@ -33,7 +33,10 @@ backlash                   (kinematic, rolling) ½·sign(u_i)                 ga
 steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
                            drag μN·|δ| of the toed rear wheels, δ = T/k
                            through the held joints' stiction play d_c/2;
-                           the rotation's drag: s_rot/k, 0 ≤ s_rot ≤ 1.5
+                           the rotation's drag: s_rot/k, 0 ≤ s_rot ≤ 1.5;
+                           (torque, held steering) the odometry's error
+                           from the rear toe rolling the encoders see:
+                           c_odo (1 for a toe that explains it)
 tire_slip                  (rolling) lateral slip of a rigid chassis whose  1/C_α [rad/N]
                            side forces need slip angles F/C_α
 heavy_steering_units       exact point masses at the wheel centres          m_w [kg]

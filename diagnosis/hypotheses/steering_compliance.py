@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY, SIDE_INDEX
-from qomni.ident import kinematics
-from qomni.ident.regressor_rows import model_alpha
+from qomni.ident import dynamics, kinematics, odometry
+from qomni.ident.regressor_rows import COULOMB_COLUMNS, model_alpha
 
 from ..channels import ChannelData
 from .base import Hypothesis, _linear_magnitude, _project, _tyre_torque
@@ -91,18 +91,80 @@ def _compliance_scrub(ch: ChannelData) -> np.ndarray:
     return _project(ch, Q, smooth=True)[:, None]
 
 
+#: Front wheel rows of H_k (the steering angles and the front wheels' rolling): where the linkage
+#: deflects, these still obey the rigid model; the rear wheels' rows do not.
+_FRONT_ROWS = [3, 4, 5, 7]
+_REAR_WHEELS = [i for i in range(4) if FRONT_SIGN[i] < 0]
+
+
+def _rear_toe_rolling(ctx) -> np.ndarray:
+    """(N, 4) rolling of the rear wheels beyond what the steering and the front wheels give them through
+    H_k, rad/s wheel side (front entries 0).
+
+    A rear unit toed by the linkage turns about its steering axis, and its wheel, a beside that axis,
+    rolls by a·δ̇/r while it does: the encoders see the deflection's rate. Zero in a step whose steering
+    moves (:data:`HELD_STEERING_SPEED` exceeded by the median rate): there the 14-bit steering sensor's
+    rate error times a/r is of the size of the toe's own rolling (a clean vehicle's lane change shows
+    0.03 rad/s of it, its held steps ≤ 0.003)."""
+    st, H = ctx.st, ctx.H
+    n = len(st.time)
+    out = np.zeros((n, 4))
+    if np.median(np.abs(st.qd[:, 3:5])) > HELD_STEERING_SPEED:
+        return out
+    front = H[:, _FRONT_ROWS, :]
+    gram = np.einsum("nki,nkj->nij", front, front)
+    if np.linalg.matrix_rank(gram).min() < gram.shape[-1]:
+        return out
+    s_dot = np.linalg.solve(gram, np.einsum("nki,nk->ni", front, st.qd[:, _FRONT_ROWS])[..., None])[..., 0]
+    expected = np.einsum("nik,nk->ni", H[:, 5:9, :], s_dot)
+    out[:, _REAR_WHEELS] = st.qd[:, [5 + i for i in _REAR_WHEELS]] - expected[:, _REAR_WHEELS]
+    return out
+
+
+def _compliance_odometry(ch: ChannelData) -> np.ndarray:
+    """The model's error from the chassis motion its odometry reads off toed rear wheels, N or N m.
+
+    The recording's chassis velocity is the least-squares solution of all four wheels' rolling
+    (``ident.odometry.chassis_velocity``): the rear wheels' toe rolling (:func:`_rear_toe_rolling`)
+    passes into it as a velocity e (and its rate ė) the chassis does not have, and the model evaluated at
+    the measured motion exceeds the one at the true motion by Θ(q, q̇, q̈)p − Θ(q, q̇ − e, q̈ − ė)p (inertia,
+    viscous and velocity-product terms; the Coulomb columns, sign functions of rates far above e, are
+    left out). Its coefficient is 1 where the toe explains the rolling."""
+    ctx = ch.context
+    st, g = ctx.st, ctx.sheet.geometry
+    n = len(st.time)
+    error = np.zeros((n, 9))
+    error[:, :3] = odometry.chassis_velocity(st.q[:, 3:5], np.zeros((n, 2)), _rear_toe_rolling(ctx), g)
+    if not error.any():
+        return ch.rows(np.zeros(n))
+    rate = np.gradient(error, st.cycle_time, axis=0, edge_order=2)
+    alpha = model_alpha(st, g)
+    q = st.q.copy()
+    q[:, 3:5] = alpha
+    alpha_v = kinematics.alpha_v_from_alpha(alpha, g) if st.k == 2 else None
+    p = np.array(ctx.p, dtype=float)
+    p[COULOMB_COLUMNS] = 0.0
+    measured = dynamics.reduced_regressor(st.k, q, st.qd, st.qdd, g, alpha_v=alpha_v)[:, ch.index, :]
+    true = dynamics.reduced_regressor(st.k, q, st.qd - error, st.qdd - rate, g, alpha_v=alpha_v)[:, ch.index, :]
+    return ch.rows((true - measured) @ p)
+
+
 def _compliance_columns(ch: ChannelData, _):
-    """Columns (1/k, s_rot/k): the rear wheels' rolling with the deflection (kinematic channels) and the
-    scrub drag of driving straight and of the lane change carry 1/k; the rotation's scrub has its own
-    coefficient (:data:`STEERING_COMPLIANCE`)."""
+    """Columns (1/k, s_rot/k, c_odo): the rear wheels' rolling with the deflection (kinematic channels)
+    and the scrub drag of driving straight, of the lane change and of the arcs carry 1/k; the rotation's
+    scrub has its own coefficient; the odometry's error from the toe rolling (torque channels of steps
+    with held steering) carries c_odo, 1 for a toe that explains the rolling (:data:`STEERING_COMPLIANCE`)."""
     if ch.kind == "kinematic":
         column = _compliance_kinematic(ch)
-    elif ch.kind == "torque":
-        column = _compliance_scrub(ch)
-    else:
+        zero = np.zeros_like(column)
+        return np.hstack([column, zero, zero])
+    if ch.kind != "torque":
         return None
+    column = _compliance_scrub(ch)
+    odometry_error = _compliance_odometry(ch)[:, None]
     zero = np.zeros_like(column)
-    return np.hstack([zero, column] if ch.context.step in ROTATION_STEPS else [column, zero])
+    scrub = [zero, column] if ch.context.step in ROTATION_STEPS else [column, zero]
+    return np.hstack([*scrub, odometry_error])
 
 
 #: 1e-4 rad/(N m) (a linkage of 10 kN m/rad): the campaign's typical tyre forces (≈ 250 N, a·F ≈ 20 N m
@@ -112,11 +174,15 @@ def _compliance_columns(ch: ChannelData, _):
 #: leaves room for the two deflection models' errors (fitted s_rot: 0.93–1.01 at 800 N m/rad on full
 #: campaigns), not for the 4× 1/k of the drives fighting sticking steering joints.
 S_ROT_MAX = 1.5
+#: c_odo, 0 ≤ c_odo ≤ ODOMETRY_MAX: the odometry error's coefficient, 1 when the measured toe rolling is
+#: the deflection's (fitted 0.9–1.2 in straight driving and the arcs at 400 N m/rad, against a truth of
+#: 1); the bound leaves the same room for the estimate's error as S_ROT_MAX.
+ODOMETRY_MAX = 1.5
 STEERING_COMPLIANCE = Hypothesis(
-    "steering_compliance", "", ("compliance", "compliance_rotation"), _compliance_columns,
+    "steering_compliance", "", ("compliance", "compliance_rotation", "compliance_odometry"), _compliance_columns,
     magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k "
                                 f"(scrub taken at μ = {SCRUB_FRICTION})"),
-    physical=lambda t: t[0] > 0 and 0 <= t[1] <= S_ROT_MAX * t[0], relevant=1e-4)
+    physical=lambda t: t[0] > 0 and 0 <= t[1] <= S_ROT_MAX * t[0] and 0 <= t[2] <= ODOMETRY_MAX, relevant=1e-4)
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (STEERING_COMPLIANCE,)
