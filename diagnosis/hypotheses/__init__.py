@@ -30,8 +30,8 @@ wheel_radius               (kinematic) predicted rolling angle; (torque)    r_no
                            −(steering-joint terms) − 2·(Θ̂_{m_ch} m_ch +
                            Θ̂_{C_ch} C_ch): odometry's scale
 backlash                   (kinematic, rolling) ½·sign(u_i)                 gap [rad, wheel side]
-steering_compliance        (kinematic) linkage torque T; (torque) scrub    1/stiffness [rad/(N m)]
-                           drag μN·|δ| of the toed rear wheels, δ = T/k
+steering_compliance        (torque) scrub drag μN·|δ| of the toed rear    1/stiffness [rad/(N m)]
+                           wheels, δ = T/k of the linkage torque T
                            through the held joints' stiction play d_c/2;
                            the rotation's drag: s_rot/k, 0 ≤ s_rot ≤ 1.5;
                            (torque, held steering) the odometry's error

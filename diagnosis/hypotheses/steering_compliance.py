@@ -1,9 +1,10 @@
-"""Steering compliance: the front/rear linkage deflects under the tyres' torques and toes the rear wheels."""
+"""Steering compliance: the front/rear linkage deflects under the tyres' torques and toes the rear wheels,
+which drag sideways and roll with the toe (the odometry reads that as chassis motion)."""
 from __future__ import annotations
 
 import numpy as np
 
-from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY, SIDE_INDEX
+from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY
 from qomni.ident import dynamics, kinematics, odometry
 from qomni.ident.regressor_rows import COULOMB_COLUMNS, model_alpha
 
@@ -23,16 +24,6 @@ def _linkage_torque(H1: np.ndarray, wheel_torque: np.ndarray) -> np.ndarray:
     half their difference — which makes them turn alike."""
     return np.column_stack([0.5 * (H1[:, 5 + f, s] * wheel_torque[:, f] - H1[:, 5 + r, s] * wheel_torque[:, r])
                             for s, (f, r) in enumerate(((0, 1), (2, 3)))])
-
-
-def _compliance_kinematic(ch: ChannelData) -> np.ndarray:
-    i = ch.index
-    if FRONT_SIGN[i] > 0:
-        return ch.rows(np.zeros(len(ch.context.st.time)))[:, None]
-    ctx, side = ch.context, SIDE_INDEX[ch.index]
-    # the rear joint deflects by the linkage torque / stiffness and its wheel rolls with it
-    coupling = _linkage_torque(ctx.H, ctx.sheet.drive.i_G * ctx.st.motor_torque)[:, side]
-    return ch.rows(ctx.H[:, 5 + i, side] * coupling * FRONT_SIGN[i])[:, None]
 
 
 #: rad/s: a side's steering joints count as held (static friction engaged) below this filtered speed. A
@@ -150,14 +141,16 @@ def _compliance_odometry(ch: ChannelData) -> np.ndarray:
 
 
 def _compliance_columns(ch: ChannelData, _):
-    """Columns (1/k, s_rot/k, c_odo): the rear wheels' rolling with the deflection (kinematic channels)
-    and the scrub drag of driving straight, of the lane change and of the arcs carry 1/k; the rotation's
-    scrub has its own coefficient; the odometry's error from the toe rolling (torque channels of steps
-    with held steering) carries c_odo, 1 for a toe that explains the rolling (:data:`STEERING_COMPLIANCE`)."""
-    if ch.kind == "kinematic":
-        column = _compliance_kinematic(ch)
-        zero = np.zeros_like(column)
-        return np.hstack([column, zero, zero])
+    """Columns (1/k, s_rot/k, c_odo) of the torque channels: the scrub drag of driving straight, of the
+    lane change and of the arcs carries 1/k; the rotation's scrub has its own coefficient; the odometry's
+    error from the toe rolling (steps with held steering) carries c_odo, 1 for a toe that explains the
+    rolling (:data:`STEERING_COMPLIANCE`).
+
+    The steering steps' kinematic channels get no column: there each unit is driven by its own wheel and
+    the linkage deflects by 0.1–0.5 mrad, which the linkage torque T/k does not predict (R² 0.01–0.03
+    against the emulator's truth at 400 N m/rad); a column of it worsened their held-out residual (by 28 %
+    on the rear right wheel) and pulled 1/k, and the two softest linkages of a full draw named a rolling
+    resistance beside the compliance with it and none without."""
     if ch.kind != "torque":
         return None
     column = _compliance_scrub(ch)
@@ -169,7 +162,7 @@ def _compliance_columns(ch: ChannelData, _):
 
 #: 1e-4 rad/(N m) (a linkage of 10 kN m/rad): the campaign's typical tyre forces (≈ 250 N, a·F ≈ 20 N m
 #: on the linkage) then toe a rear wheel by < 2 mrad, within an ordinary wheel-alignment tolerance (±0.1°).
-#: 1/k: the straight and lane-change drag and the kinematic channels; s_rot/k, 0 ≤ s_rot ≤ S_ROT_MAX:
+#: 1/k: the straight, lane-change and arcs' drag; s_rot/k, 0 ≤ s_rot ≤ S_ROT_MAX:
 #: the rotation's share of full sliding. More than full sliding is no scrub of this linkage; the bound
 #: leaves room for the two deflection models' errors (fitted s_rot: 0.93–1.01 at 800 N m/rad on full
 #: campaigns), not for the 4× 1/k of the drives fighting sticking steering joints.
