@@ -11,7 +11,6 @@ far stays on disk.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -26,6 +25,7 @@ from .controller import ControllerSettings, StepController, quintic_alignment, s
 from .probe import DeadTimeProbe
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
+from .json_values import json_number
 from .recording import SignalWriter
 from .rundir import METADATA, RUN_FORMAT, SIGNALS, write_json
 
@@ -115,26 +115,22 @@ class CampaignSettings:
         Raises: ValueError naming the key: not a number (a string, a boolean), not finite, an integer
         setting with a fraction, a duration, limit or period ≤ 0 (the arcs' duration and the rest and
         alignment times may be 0), fewer than one lane change or harmonic."""
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"settings.{f.name} must be a finite number, got {value!r}")
-            if f.type in ("int", int):
-                if value != int(value):
-                    raise ValueError(f"settings.{f.name} must be an integer, got {value!r}")
-                object.__setattr__(self, f.name, int(value))
-            else:
-                object.__setattr__(self, f.name, float(value))
         may_be_zero = {"arc_duration", "align_duration", "rest_duration", "seed"}
         at_least_one = {"lane_changes", "n_harmonics"}
         for f in fields(self):
-            value = getattr(self, f.name)
+            where = f"settings.{f.name}"
+            value = json_number(getattr(self, f.name), where)
+            if f.type in ("int", int):
+                if value != int(value):
+                    raise ValueError(f"{where} must be an integer, got {value!r}")
+                value = int(value)
+            object.__setattr__(self, f.name, value)
             if f.name in at_least_one and value < 1:
-                raise ValueError(f"settings.{f.name} must be >= 1, got {value!r}")
+                raise ValueError(f"{where} must be >= 1, got {value!r}")
             if f.name in may_be_zero and value < 0:
-                raise ValueError(f"settings.{f.name} must be >= 0, got {value!r}")
+                raise ValueError(f"{where} must be >= 0, got {value!r}")
             if f.name not in may_be_zero | at_least_one and not value > 0:
-                raise ValueError(f"settings.{f.name} must be > 0, got {value!r}")
+                raise ValueError(f"{where} must be > 0, got {value!r}")
 
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":

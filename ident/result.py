@@ -2,7 +2,6 @@
 fixed p₂, the fit's statistics, and its JSON form (``identification.json``)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -10,7 +9,9 @@ import numpy as np
 
 from qomni.conventions import P1_NAMES, PARAMETER_NAMES, PARAMETER_UNITS
 
+from .json_values import json_number, json_object, row_counts
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
+from .torque_timing import TorqueTimingError, check_lag
 
 @dataclass
 class IdentificationResult:
@@ -169,7 +170,7 @@ class IdentificationResult:
                 (:mod:`.torque_timing`), a velocity threshold not positive, a condition number below 1,
                 a covariance not 10 × 10 finite and symmetric, a row count not a non-negative integer.
         """
-        params = _mapping(d.get("parameters"), "parameters")
+        params = json_object(d.get("parameters"), "parameters")
         unknown = sorted(set(params) - set(P1_NAMES) - {"B_w"})
         if unknown:
             raise ValueError(f"parameters: unknown {', '.join(unknown)} (this model has {', '.join(PARAMETER_NAMES)})")
@@ -177,40 +178,40 @@ class IdentificationResult:
         for name in (*P1_NAMES, "B_w"):
             if name not in params:
                 raise ValueError(f"parameters.{name}: missing")
-            entry = _mapping(params[name], f"parameters.{name}")
-            value = _number(entry.get("value"), f"parameters.{name}.value")
+            entry = json_object(params[name], f"parameters.{name}")
+            value = json_number(entry.get("value"), f"parameters.{name}.value")
             if name == "B_w":
-                std = _number(entry.get("std") or 0.0, f"parameters.{name}.std")
+                std = json_number(entry.get("std") or 0.0, f"parameters.{name}.std")
             else:
-                std = _number(entry.get("std"), f"parameters.{name}.std")
+                std = json_number(entry.get("std"), f"parameters.{name}.std")
             if std < 0:
                 raise ValueError(f"parameters.{name}.std must be >= 0, got {std!r}")
             boot = entry.get("std_bootstrap")
-            if boot is not None and _number(boot, f"parameters.{name}.std_bootstrap") < 0:
+            if boot is not None and json_number(boot, f"parameters.{name}.std_bootstrap") < 0:
                 raise ValueError(f"parameters.{name}.std_bootstrap must be >= 0, got {boot!r}")
             entries[name] = (value, std, boot)
         if not entries["B_w"][0] > 0:
             raise ValueError(f"parameters.B_w.value must be > 0 kg m^2, got {entries['B_w'][0]!r}")
-        torque_lag = dict(_mapping(d.get("torque_lag", {}), "torque_lag"))
+        torque_lag = dict(json_object(d.get("torque_lag", {}), "torque_lag"))
         if "value" in torque_lag:
-            lag = _number(torque_lag["value"], "torque_lag.value")
-            from .torque_timing import MAX_LAG
-            if abs(lag) > MAX_LAG:
-                raise ValueError(f"torque_lag.value must be within ±{MAX_LAG} s, got {lag!r}")
-        condition = _number(d.get("condition_number"), "condition_number")
+            try:
+                check_lag(json_number(torque_lag["value"], "torque_lag.value"))
+            except TorqueTimingError as exc:
+                raise ValueError(f"torque_lag.value: {exc}") from None
+        condition = json_number(d.get("condition_number"), "condition_number")
         if not condition >= 1:
             raise ValueError(f"condition_number must be >= 1, got {condition!r}")
         weighted = d.get("condition_number_channel_weighted")
         if weighted is not None:
-            weighted = _number(weighted, "condition_number_channel_weighted")
+            weighted = json_number(weighted, "condition_number_channel_weighted")
         threshold = d.get("velocity_threshold", DEFAULT_VELOCITY_THRESHOLD)
         for key, v in (threshold.items() if isinstance(threshold, Mapping) else [("", threshold)]):
             where = f"velocity_threshold.{key}" if key else "velocity_threshold"
-            if not _number(v, where) > 0:
+            if not json_number(v, where) > 0:
                 raise ValueError(f"{where} must be > 0 rad/s or m/s, got {v!r}")
         cov = d.get("covariance")
         if cov is not None:
-            cov = _mapping(cov, "covariance")
+            cov = json_object(cov, "covariance")
             if list(cov.get("names", [])) != list(P1_NAMES):
                 raise ValueError(f"covariance.names {cov.get('names')} differ from {list(P1_NAMES)}")
             try:
@@ -220,61 +221,33 @@ class IdentificationResult:
             n = len(P1_NAMES)
             if cov.shape != (n, n) or not np.isfinite(cov).all() or np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max():
                 raise ValueError(f"covariance.matrix must be a finite symmetric {n} × {n} array, got shape {cov.shape}")
-        first = _mapping(d.get("ls_first_pass", {}), "ls_first_pass")
-        estimator = _mapping(d.get("estimator", {}), "estimator")
+        first = json_object(d.get("ls_first_pass", {}), "ls_first_pass")
+        estimator = json_object(d.get("estimator", {}), "estimator")
         return cls(
             values={n: entries[n][0] for n in P1_NAMES},
             std={n: entries[n][1] for n in P1_NAMES},
             B_w=entries["B_w"][0],
             condition_number=condition,
-            rows_used=_counts(d.get("rows_used", {}), "rows_used"),
-            rows_total=_counts(d.get("rows_total", {}), "rows_total"),
-            residual_rms={k: _number(v, f"residual_rms.{k}")
-                          for k, v in _mapping(d.get("residual_rms", {}), "residual_rms").items()},
-            channel_sigma={k: _number(v, f"channel_sigma.{k}")
-                           for k, v in _mapping(d.get("channel_sigma", {}), "channel_sigma").items()},
+            rows_used=row_counts(d.get("rows_used", {}), "rows_used"),
+            rows_total=row_counts(d.get("rows_total", {}), "rows_total"),
+            residual_rms={k: json_number(v, f"residual_rms.{k}")
+                          for k, v in json_object(d.get("residual_rms", {}), "residual_rms").items()},
+            channel_sigma={k: json_number(v, f"channel_sigma.{k}")
+                           for k, v in json_object(d.get("channel_sigma", {}), "channel_sigma").items()},
             method=str(d.get("method", "ls")),
             condition_number_channel_weighted=weighted,
             velocity_threshold=threshold,
             covariance=cov,
-            values_ls={k: _number(_mapping(v, f"ls_first_pass.{k}").get("value"), f"ls_first_pass.{k}.value")
+            values_ls={k: json_number(json_object(v, f"ls_first_pass.{k}").get("value"), f"ls_first_pass.{k}.value")
                        for k, v in first.items()},
-            std_ls={k: _number(_mapping(v, f"ls_first_pass.{k}").get("std"), f"ls_first_pass.{k}.std")
+            std_ls={k: json_number(json_object(v, f"ls_first_pass.{k}").get("std"), f"ls_first_pass.{k}.std")
                     for k, v in first.items()},
             estimator=str(estimator.get("name", "wls")),
             estimator_info={k: v for k, v in estimator.items() if k != "name"},
-            identifiability=dict(_mapping(d.get("identifiability", {}), "identifiability")),
+            identifiability=dict(json_object(d.get("identifiability", {}), "identifiability")),
             std_bootstrap={n: float(entries[n][2]) for n in P1_NAMES if entries[n][2] is not None},
-            bootstrap=dict(_mapping(d.get("bootstrap", {}), "bootstrap")),
+            bootstrap=dict(json_object(d.get("bootstrap", {}), "bootstrap")),
             torque_lag=torque_lag,
-            spikes=dict(_mapping(d.get("spikes", {}), "spikes")),
+            spikes=dict(json_object(d.get("spikes", {}), "spikes")),
         )
 
-
-
-def _mapping(x, where: str) -> Mapping:
-    """``x`` if it is a JSON object. Raises ValueError naming ``where``."""
-    if not isinstance(x, Mapping):
-        raise ValueError(f"{where} must be an object, got {type(x).__name__}")
-    return x
-
-
-def _number(x, where: str) -> float:
-    """``x`` as a finite float if it is a JSON number (not a boolean, string or null). Raises ValueError
-    naming ``where``."""
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise ValueError(f"{where} must be a number, got {x!r}")
-    value = float(x)
-    if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {value!r}")
-    return value
-
-
-def _counts(x, where: str) -> dict[str, int]:
-    """{channel: row count} with non-negative integers. Raises ValueError naming ``where``."""
-    out = {}
-    for k, v in _mapping(x, where).items():
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ValueError(f"{where}.{k} must be a non-negative integer, got {v!r}")
-        out[k] = v
-    return out

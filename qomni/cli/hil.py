@@ -164,9 +164,9 @@ def decode(
 
     from qomni.hil.master.decode import DecodeError, DecodeReport, decode_log, node_files
     from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
-    from qomni.ident.rundir import METADATA, SIGNALS, write_json
     from qomni.datasheet import DataSheet, DataSheetError
-    from qomni.ident.rundir import RUN_FORMAT, RunDirectoryError, completed_steps, datasheet_from_metadata, read_json
+    from qomni.ident.rundir import (METADATA, RUN_FORMAT, SIGNALS, RunDirectoryError, completed_steps,
+                                    datasheet_from_metadata, read_json, write_json)
     from qomni.ident.recording import SignalWriter
 
     if not log.is_file():
