@@ -155,6 +155,35 @@ def test_a_cut_blf_decodes_its_first_part_with_a_warning(session, tmp_path):
     assert json.loads((out / "metadata.json").read_text())["decoded"]["warnings"]
 
 
+def test_a_candump_log_cut_within_a_line_decodes_its_complete_lines_with_a_warning(session, tmp_path):
+    """A line cut inside its data would parse into a frame with part of its bytes (a wrong last cycle):
+    the cut line is left out, and the rest decodes as the same log ended at its last complete line."""
+    _, logs, _, _ = session
+    text = logs[1].read_text()
+    lines = text.splitlines(keepends=True)
+    keep = len(lines) // 2
+    while "#" not in lines[keep] or len(lines[keep].split("#", 1)[1].strip()) < 4:   # a line with data
+        keep += 1
+    whole = tmp_path / "whole.log"
+    whole.write_text("".join(lines[:keep]))
+    cut = tmp_path / "cut.log"
+    cut.write_text("".join(lines[:keep]) + lines[keep].rstrip("\n")[:-3])      # within the data field
+    decoded = {}
+    for path in (whole, cut):
+        report = DecodeReport()
+        decoded[path] = (list(decode_log(path, encoder_increments=INCREMENTS, steering_sensor_bits=BITS,
+                                         cycle_time=T_S, report=report)), report)
+    (cycles, report), (reference, ref_report) = decoded[cut], decoded[whole]
+    assert 0 < len(cycles) == len(reference) < N_CYCLES and report.frames == ref_report.frames
+    for a, b in zip(cycles, reference):
+        np.testing.assert_array_equal(a.measurement.motor_position, b.measurement.motor_position)
+        np.testing.assert_array_equal(a.measurement.motor_torque, b.measurement.motor_torque)
+    assert any("has no line end: the file is cut" in w for w in report.warnings) and not ref_report.warnings
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["decode", str(cut), "--out", str(out)])
+    assert result.exit_code == 0 and "the file is cut" in " ".join(result.output.split())
+
+
 def test_a_failed_decode_leaves_nothing_that_blocks_its_rerun(session, tmp_path):
     _, logs, _, _ = session
     bad = tmp_path / "bad.log"

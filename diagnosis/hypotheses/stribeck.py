@@ -125,22 +125,45 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     z = unsteered_z(wheels.fit.nonlinear)
     if z is None:
         return
-    bar = _unsteered_bar(wheels, None if unsteered_sigma is None else unsteered_sigma(wheels.fit.nonlinear))
+    sigma = None if unsteered_sigma is None else unsteered_sigma(wheels.fit.nonlinear)
+    bar = _unsteered_bar(wheels, sigma)
+    z_lc = None if steered_z is None else _profiled(steered_z)
     _wheels_or_steering(wheels, steering, z, bar)
     if both is not None and z >= bar and (wheels.significant or steering.significant):
-        _in_both_joints(both, wheels, steering, z, None if steered_z is None else _profiled(steered_z))
+        _in_both_joints(both, wheels, steering, z, z_lc)
+    evidence = _placement_evidence(wheels, sigma, z, bar, z_lc)
+    for c in (wheels, steering, both):
+        if c is not None:
+            c.notes.append(evidence)
+
+
+def _predicted_unsteered_z(wheels, sigma: float | None) -> float | None:
+    """The z the wheel variant's level fitted on the steering steps (beyond the reference's) would have in
+    the steps without steering motion, whose level has σ ``sigma`` there; None without that σ."""
+    if sigma is None or not sigma > 0:
+        return None
+    theta = float(np.asarray(wheels.fit.theta)[0])
+    theta0 = 0.0 if getattr(wheels.fit, "theta0", None) is None else float(np.asarray(wheels.fit.theta0)[0])
+    return (theta - theta0) / sigma
+
+
+def _placement_evidence(wheels, sigma, z: float, bar: float, z_lane_change: float | None) -> str:
+    """The note that states what the placement read (every Stribeck variant carries it)."""
+    predicted = _predicted_unsteered_z(wheels, sigma)
+    text = f"placement: the wheel joints' level in the steps without steering motion z = {z:.2f} (bar {bar:.2f}"
+    text += ")" if predicted is None else f", the wheel variant predicts {predicted:.2f})"
+    if z_lane_change is not None:
+        text += f"; the steering joints' level in the lane change z = {z_lane_change:.2f}"
+    return text
 
 
 def _unsteered_bar(wheels, sigma: float | None) -> float:
     """The z the wheel variant's level in the unsteered steps must reach: WHEEL_FRICTION_Z, or half the z
     its level fitted on the steering steps (beyond the reference's) would have there at ``sigma``, where
     that is lower (:func:`tell_friction_joints_apart`)."""
-    if sigma is None or not sigma > 0:
-        return WHEEL_FRICTION_Z
-    theta = float(np.asarray(wheels.fit.theta)[0])
-    theta0 = 0.0 if getattr(wheels.fit, "theta0", None) is None else float(np.asarray(wheels.fit.theta0)[0])
-    predicted = (theta - theta0) / sigma
-    return min(WHEEL_FRICTION_Z, 0.5 * predicted) if predicted > 0 else WHEEL_FRICTION_Z
+    predicted = _predicted_unsteered_z(wheels, sigma)
+    return min(WHEEL_FRICTION_Z, 0.5 * predicted) if predicted is not None and predicted > 0 \
+        else WHEEL_FRICTION_Z
 
 
 def _profiled(steered_z) -> float | None:

@@ -22,7 +22,9 @@ A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeRepor
 """
 from __future__ import annotations
 
+import io
 import itertools
+import locale
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +32,8 @@ from typing import Iterator, Sequence
 
 import can
 import numpy as np
+from can.io.generic import TextIOMessageReader
+from can.io.player import MESSAGE_READERS
 from canopen import objectdictionary as od
 
 from ..cia import MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS, MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS
@@ -200,7 +204,7 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
     rated = _rated_torques(path, mapping, rated_torque, report)
-    reader = _open_log(path)
+    reader = _open_log(path, report)
     announced = getattr(reader, "file_size", None)                   # BLF: the size its header announces
     if announced and path.stat().st_size < announced:
         report.warnings.append(f"{path}: {path.stat().st_size} of the {announced} bytes the BLF header "
@@ -209,14 +213,74 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
                    steering_sensor_bits)
 
 
-def _open_log(path: Path):
-    """python-can's reader of the log's format; DecodeError naming the file if it cannot read it."""
+def _open_log(path: Path, report: DecodeReport | None = None):
+    """python-can's reader of the log's format; DecodeError naming the file if it cannot read it.
+
+    A text log (candump ``-L``, ASC, CSV, TRC) whose last line has no line end was cut while it was
+    written: that line may still parse, into a frame with part of its data, so the reader is given the
+    file up to its last complete line and ``report`` a warning (as for a BLF shorter than its header
+    announces)."""
+    reader_class = MESSAGE_READERS.get(path.suffix.lower())
+    if reader_class is not None and issubclass(reader_class, TextIOMessageReader):
+        complete = _complete_lines_size(path)
+        if complete < path.stat().st_size:
+            if report is not None:
+                report.warnings.append(f"{path}: its last line (from byte {complete}) has no line end: the "
+                                       "file is cut; only the lines before it are decoded")
+            try:
+                return reader_class(_text_head(path, complete))
+            except Exception as exc:                                 # noqa: BLE001 - a format's own parse error
+                raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
     try:
         return can.LogReader(str(path))
     except ValueError as exc:
         raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
     except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
         raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+
+
+def _complete_lines_size(path: Path, chunk: int = 1 << 16) -> int:
+    """Bytes of ``path`` up to and including its last line end (its size when it ends with one)."""
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        end = size
+        while end > 0:
+            start = max(0, end - chunk)
+            f.seek(start)
+            block = f.read(end - start)
+            if end == size and block.endswith(b"\n"):
+                return size
+            i = block.rfind(b"\n")
+            if i >= 0:
+                return start + i + 1
+            end = start
+    return 0
+
+
+class _Head(io.RawIOBase):
+    """The first ``size`` bytes of a binary file, as a raw stream."""
+
+    def __init__(self, raw, size: int):
+        self._raw, self._left = raw, size
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        view = memoryview(buffer)[: self._left]
+        n = self._raw.readinto(view) if len(view) else 0
+        self._left -= n
+        return n
+
+    def close(self) -> None:
+        self._raw.close()
+        super().close()
+
+
+def _text_head(path: Path, size: int) -> io.TextIOWrapper:
+    """The first ``size`` bytes of ``path`` as text, in the encoding python-can reads text logs in."""
+    return io.TextIOWrapper(io.BufferedReader(_Head(path.open("rb"), size)),
+                            encoding=locale.getpreferredencoding(False))
 
 
 def _frames(reader, path: Path):
