@@ -238,13 +238,13 @@ def test_the_lane_change_places_friction_in_the_steering_joints_beside_the_wheel
     """Where a lane change was recorded, its steering channel (steering turning while the wheels roll at
     speed) decides whether the steering joints have friction beside the wheel joints, not the steering
     steps' both-joints fit: there a wheel-joint peak shows stronger than its column and the fit hands the
-    excess to the steering joints. The lane change's Stribeck velocity is profiled over the grid, so its
-    bar is 5 % shared over the grid's points."""
+    excess to the steering joints. The lane change is asked once, at the Stribeck velocity the steering
+    variant's fit profiled on the steering steps, so its bar is a one-sided 5 %."""
     from scipy import stats
 
     from qomni.diagnosis.hypotheses.stribeck import LANE_CHANGE_STEERING_Z, STRIBECK_VELOCITIES, \
         WHEEL_FRICTION_Z, tell_friction_joints_apart
-    assert LANE_CHANGE_STEERING_Z == pytest.approx(stats.norm.isf(0.05 / len(STRIBECK_VELOCITIES)))
+    assert LANE_CHANGE_STEERING_Z == pytest.approx(stats.norm.isf(0.05))
     z_w = WHEEL_FRICTION_Z + 1.0
     asked = []
 
@@ -261,21 +261,29 @@ def test_the_lane_change_places_friction_in_the_steering_joints_beside_the_wheel
     tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w, lane_change(0.3))
     assert wheels.significant and not steering.significant and not both.significant
     assert "the lane change" in both.notes[0] and "not named" in both.notes[0]
-    assert sorted(asked) == sorted(STRIBECK_VELOCITIES)      # profiled over the whole grid
-    # above 1.645 but not above the grid's shared bar: still the wheels
-    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+    assert set(asked) == {steering.fit.nonlinear}            # once, at the steering variant's velocity
+    # just below the bar: still the wheels
+    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True, v_s=0.1),
                               _both([1.0, 1.2], [0.3, 0.2], theta0=[0.1, 0.4]))
     tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w,
-                               lane_change(LANE_CHANGE_STEERING_Z - 0.1))
+                               lane_change(LANE_CHANGE_STEERING_Z - 0.1, at=0.1))
     assert wheels.significant and not both.significant
-    # the lane change shows it at some grid velocity although the steering steps' coefficient is at the
-    # reference's level: both
-    wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+    # the lane change shows it at the steering variant's velocity although the steering steps'
+    # coefficient is at the reference's level: both
+    wheels, steering, both = (_stribeck("joints=wheels", True),
+                              _stribeck("joints=steering", True, v_s=STRIBECK_VELOCITIES[1]),
                               _both([1.0, 0.45], [0.3, 0.2], theta0=[0.1, 0.4]))
     tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w,
                                lane_change(LANE_CHANGE_STEERING_Z + 0.5, at=STRIBECK_VELOCITIES[1]))
     assert both.significant and not wheels.significant and not steering.significant
     assert "the lane change" in both.notes[0]
+    # ... but not at another velocity of the grid: that one is not asked
+    wheels, steering, both = (_stribeck("joints=wheels", True),
+                              _stribeck("joints=steering", True, v_s=STRIBECK_VELOCITIES[3]),
+                              _both([1.0, 0.45], [0.3, 0.2], theta0=[0.1, 0.4]))
+    tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w,
+                               lane_change(LANE_CHANGE_STEERING_Z + 0.5, at=STRIBECK_VELOCITIES[1]))
+    assert wheels.significant and not both.significant
     # the lane change cannot move the wheels into the verdict: without the unsteered steps' z, steering
     wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
                               _both([1.0, 1.2], [0.3, 0.2]))

@@ -77,11 +77,11 @@ WHEEL_FRICTION_Z = 1.645
 #: reference run's level for friction in both joints to be named in a run without a lane change
 #: (:func:`_in_both_joints`).
 STEERING_BEYOND_WHEELS_Z = 1.645
-#: One-sided z the steering joints' Stribeck level in the lane change's steering channel must reach beyond
-#: the reference run's level there, at the Stribeck velocity of the grid where it is largest, for friction
-#: in both joints to be named: 5 % shared over the grid's points (Bonferroni), as the velocity is profiled
-#: on the same rows.
-LANE_CHANGE_STEERING_Z = float(stats.norm.isf(0.05 / len(STRIBECK_VELOCITIES)))
+#: One-sided z (5 %) the steering joints' Stribeck level in the lane change's steering channel must reach
+#: beyond the reference run's level there, at the Stribeck velocity the steering variant's fit profiled on
+#: the steering steps, for friction in both joints to be named. That velocity is chosen on other rows, so
+#: the lane change is tested once, not over the grid.
+LANE_CHANGE_STEERING_Z = float(stats.norm.isf(0.05))
 
 
 def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, unsteered_sigma=None) -> None:
@@ -103,7 +103,8 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     Friction in both joints at once: where the unsteered steps place friction in the wheel joints
     (``z`` at the bar) and the lane change, whose steering turns while the wheels roll at speed, places
     friction in the steering joints as well (``steered_z(v_s)``: the steering variant's level in the lane
-    change's steering channel beyond the reference run's), the both-joints variant is named instead
+    change's steering channel beyond the reference run's, asked at the Stribeck velocity the steering
+    variant's fit profiled on the steering steps), the both-joints variant is named instead
     (:func:`_in_both_joints`). It is never named by its own test. ``steered_z`` None (or None at v_s): the
     run has no lane change, and the both-joints fit's steering coefficient decides.
 
@@ -127,11 +128,11 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
         return
     sigma = None if unsteered_sigma is None else unsteered_sigma(wheels.fit.nonlinear)
     bar = _unsteered_bar(wheels, sigma)
-    z_lc = None if steered_z is None else _profiled(steered_z)
+    z_lc = None if steered_z is None else steered_z(steering.fit.nonlinear)
     _wheels_or_steering(wheels, steering, z, bar)
     if both is not None and z >= bar and (wheels.significant or steering.significant):
         _in_both_joints(both, wheels, steering, z, z_lc)
-    evidence = _placement_evidence(wheels, sigma, z, bar, z_lc)
+    evidence = _placement_evidence(wheels, sigma, z, bar, z_lc, steering.fit.nonlinear)
     for c in (wheels, steering, both):
         if c is not None:
             c.notes.append(evidence)
@@ -147,13 +148,15 @@ def _predicted_unsteered_z(wheels, sigma: float | None) -> float | None:
     return (theta - theta0) / sigma
 
 
-def _placement_evidence(wheels, sigma, z: float, bar: float, z_lane_change: float | None) -> str:
+def _placement_evidence(wheels, sigma, z: float, bar: float, z_lane_change: float | None,
+                        v_s_steering) -> str:
     """The note that states what the placement read (every Stribeck variant carries it)."""
     predicted = _predicted_unsteered_z(wheels, sigma)
     text = f"placement: the wheel joints' level in the steps without steering motion z = {z:.2f} (bar {bar:.2f}"
     text += ")" if predicted is None else f", the wheel variant predicts {predicted:.2f})"
     if z_lane_change is not None:
-        text += f"; the steering joints' level in the lane change z = {z_lane_change:.2f}"
+        text += (f"; the steering joints' level in the lane change z = {z_lane_change:.2f} at "
+                 f"{v_s_steering:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
     return text
 
 
@@ -166,16 +169,10 @@ def _unsteered_bar(wheels, sigma: float | None) -> float:
         else WHEEL_FRICTION_Z
 
 
-def _profiled(steered_z) -> float | None:
-    """The largest z of ``steered_z`` over the Stribeck velocity grid, None where it has none."""
-    zs = [z for z in map(steered_z, STRIBECK_VELOCITIES) if z is not None]
-    return max(zs) if zs else None
-
-
 def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | None = None) -> None:
     """Name the both-joints variant in place of the single-joint one the placement chose, when the
-    steering joints' level in the lane change (``z_lane_change``, at the grid's Stribeck velocity where it
-    is largest) exceeds the reference run's level there by LANE_CHANGE_STEERING_Z: the wheel joints are
+    steering joints' level in the lane change (``z_lane_change``, at the Stribeck velocity of the steering
+    variant's fit) exceeds the reference run's level there by LANE_CHANGE_STEERING_Z: the wheel joints are
     placed by the steps without steering motion (``z``), the steering joints by the one step whose steering
     turns while the wheels roll at speed. The steering steps cannot place it: there the two columns are
     nearly collinear, and a wheel-joint peak shows stronger than its column (the slowly rolling steered
