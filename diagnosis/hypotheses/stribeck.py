@@ -240,35 +240,33 @@ def _wheels_or_steering(wheels, steering, z: float, bar: float = WHEEL_FRICTION_
                         f"steering variant's test of the steering steps (p = {steering.p_value:.1e})")
 
 
-def unsteered_wheel_z(all_rows, ref_problem, model, lag: int, cache: dict):
-    """``v_s ↦ z`` of the wheel joints' Stribeck level in the steps without steering motion beyond the
-    reference run's level in the same steps (beyond 0 without a reference run).
+def unsteered_wheel_level(all_rows, ref_problem, model, lag: int, cache: dict):
+    """``v_s ↦ (z, σ)`` of the wheel joints' Stribeck level in the steps without steering motion: z beyond
+    the reference run's level in the same steps (beyond 0 without a reference run), σ of the level; None
+    where the variant has no column there. One fit per v_s, kept for a second call.
 
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
     the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
-    from ..problem import restrict          # the fitting machinery imports this package: import at use
+    from .. import fit as fitting           # the fitting machinery imports this package: import at use
+    from ..problem import restrict
 
     def unsteered(ch):
         return ch.context.k != 1
 
     rows = restrict(all_rows, unsteered)
     reference = None if ref_problem is None else restrict(ref_problem, unsteered)
-    return lambda v_s: _z_beyond_reference(rows, reference, model, STRIBECK_WHEELS, v_s, lag, cache)
+    fitted: dict = {}
 
-
-def unsteered_wheel_sigma(all_rows, model, lag: int, cache: dict):
-    """``v_s ↦ σ`` of the wheel joints' Stribeck level fitted in the steps without steering motion (the
-    fit of :func:`unsteered_wheel_z`), None where it has no column there."""
-    from .. import fit as fitting           # the fitting machinery imports this package: import at use
-    from ..problem import restrict
-
-    rows = restrict(all_rows, lambda ch: ch.context.k != 1)
-
-    def sigma(v_s):
-        fit = fitting.solve(rows, model, STRIBECK_WHEELS, v_s, lag, cache)
-        return None if fit is None else float(np.sqrt(fit.theta_cov[0, 0]))
-    return sigma
+    def level(v_s):
+        if v_s not in fitted:
+            ref = None if reference is None else fitting.solve(reference, model, STRIBECK_WHEELS, v_s, lag, cache)
+            fit = fitting.solve(rows, model, STRIBECK_WHEELS, v_s, lag, cache,
+                                theta0=None if ref is None else ref.theta)
+            fitted[v_s] = None if fit is None else (fitting.coefficient_z(fit, 0),
+                                                    float(np.sqrt(fit.theta_cov[0, 0])))
+        return fitted[v_s]
+    return level
 
 
 def _z_beyond_reference(rows, reference, model, h, v_s, lag: int, cache: dict) -> float | None:
@@ -291,7 +289,9 @@ def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, c
     On the full campaigns of draw 6151 its largest z over the grid stayed within −0.4…0.9 in all 6
     wheel-joint cases and reached 3.0–4.7 in all 6 steering- and both-joint cases whose peak is wider
     than 0.025 rad/s; of the 6 narrower ones (0.011–0.021 rad/s), which the lane change's reversals cross
-    within a few samples, it reached 2.8 and 3.6 in 2."""
+    within a few samples, it reached 2.8 and 3.6 in 2. At the steering variant's own Stribeck velocity
+    (the one the placement asks), over the recorded draws 5519, 4177, 2762 and 2611: 13 wheel-joint cases
+    −2.2…0.1, 10 steering-joint cases −0.3…4.7, 12 both-joint cases 0.1…4.2."""
     if steering_rows is None:
         return None
     return lambda v_s: _z_beyond_reference(steering_rows, steering_reference, model, STRIBECK_STEERING,
@@ -300,14 +300,14 @@ def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, c
 
 def resolve_joints(candidates: list, rows: RuleRows) -> None:
     """The Stribeck variants' rule (``Hypothesis.resolve``): :func:`tell_friction_joints_apart` with the
-    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_z`) and the
+    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_level`) and the
     steering variant's in the lane change (:func:`lane_change_steering_z`)."""
+    level = unsteered_wheel_level(rows.all_rows, rows.reference, rows.model, rows.lag, rows.cache)
     tell_friction_joints_apart(candidates,
-                               unsteered_wheel_z(rows.all_rows, rows.reference, rows.model, rows.lag,
-                                                 rows.cache),
+                               lambda v_s: None if level(v_s) is None else level(v_s)[0],
                                lane_change_steering_z(rows.steering, rows.steering_reference, rows.model,
                                                       rows.lag, rows.cache),
-                               unsteered_wheel_sigma(rows.all_rows, rows.model, rows.lag, rows.cache))
+                               lambda v_s: None if level(v_s) is None else level(v_s)[1])
 
 
 STRIBECK_WHEELS = Hypothesis(
