@@ -7,14 +7,13 @@ physics ([truth], [body], [noise]). See ``emulator/data/prototype.toml`` for the
 """
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 
 
-from qomni.datasheet import DataSheet, DataSheetError, Drive, Geometry
+from qomni.datasheet import DataSheet, DataSheetError, Drive, Geometry, read_table
 
 
 class DescriptionError(ValueError):
@@ -103,9 +102,9 @@ class VehicleDescription:
             raise DescriptionError(str(exc)) from exc
         desc = cls(
             datasheet=datasheet,
-            truth=_section(data, "truth", Truth, source),
-            body=_section(data, "body", Body, source),
-            noise=_section(data, "noise", Noise, source),
+            truth=read_table(data, "truth", Truth, source, DescriptionError),
+            body=read_table(data, "body", Body, source, DescriptionError),
+            noise=read_table(data, "noise", Noise, source, DescriptionError),
             source=source,
         )
         desc._check()
@@ -143,23 +142,3 @@ class VehicleDescription:
         if 2 * bd.wheel_transverse_inertia < t.B_w:
             raise DescriptionError(
                 f"{self.source}: body.wheel_transverse_inertia must be >= B_w/2 (triangle inequality)")
-
-
-def _section(data: dict, name: str, kind: type, source: str):
-    if name not in data:
-        raise DescriptionError(f"{source}: missing section [{name}]")
-    table = data[name]
-    values = {}
-    for f in fields(kind):
-        if f.name not in table:
-            raise DescriptionError(f"{source}: [{name}] is missing key '{f.name}'")
-        value = table[f.name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise DescriptionError(f"{source}: [{name}] {f.name} must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise DescriptionError(f"{source}: [{name}] {f.name} must be finite, got {value!r}")
-        values[f.name] = int(value) if f.type in ("int", int) else float(value)
-    unknown = set(table) - {f.name for f in fields(kind)}
-    if unknown:
-        raise DescriptionError(f"{source}: [{name}] has unknown keys {sorted(unknown)}")
-    return kind(**values)

@@ -151,9 +151,9 @@ class DataSheet:
         :meth:`load`."""
         sheet = cls(
             name=name,
-            geometry=_section(data, "geometry", Geometry, source),
-            drive=_section(data, "drive", Drive, source),
-            nominal=_section(data, "nominal", Nominal, source),
+            geometry=read_table(data, "geometry", Geometry, source),
+            drive=read_table(data, "drive", Drive, source),
+            nominal=read_table(data, "nominal", Nominal, source),
             source=source,
         )
         sheet._check()
@@ -193,32 +193,38 @@ class DataSheet:
                 fail("nominal", key, "must be >= 0", getattr(n, key))
 
 
-def _section(data: Mapping, name: str, kind: type, source: str):
+def read_table(data: Mapping, name: str, kind: type, source: str, error: type[Exception] | None = None):
+    """The table ``[name]`` of a parsed TOML document as the dataclass ``kind``, whose fields are numbers:
+    every field present, each a number (not a boolean or a string), finite, an integer where the field is
+    one, and no other key.
+
+    Raises:
+        ``error`` (default :class:`DataSheetError`) naming ``source``, the table and the key."""
+    error = DataSheetError if error is None else error
     if name not in data:
-        raise DataSheetError(f"{source}: missing section [{name}]")
+        raise error(f"{source}: missing section [{name}]")
     table = data[name]
     if not isinstance(table, dict):
-        raise DataSheetError(f"{source}: [{name}] must be a table")
+        raise error(f"{source}: [{name}] must be a table")
     values = {}
     for f in fields(kind):
         if f.name not in table:
-            raise DataSheetError(f"{source}: [{name}] is missing key '{f.name}'")
+            raise error(f"{source}: [{name}] is missing key '{f.name}'")
         value = table[f.name]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise DataSheetError(f"{source}: [{name}] key '{f.name}' must be a number, got {value!r}")
+            raise error(f"{source}: [{name}] key '{f.name}' must be a number, got {value!r}")
         if f.type in ("int", int):
             if isinstance(value, float) and not value.is_integer():
-                raise DataSheetError(
-                    f"{source}: [{name}] key '{f.name}' must be an integer, got {value!r}")
+                raise error(f"{source}: [{name}] key '{f.name}' must be an integer, got {value!r}")
             values[f.name] = int(value)
         else:
             if not math.isfinite(value):
-                raise DataSheetError(f"{source}: [{name}] key '{f.name}' must be finite, got {value!r}")
+                raise error(f"{source}: [{name}] key '{f.name}' must be finite, got {value!r}")
             values[f.name] = float(value)
     unknown = set(table) - {f.name for f in fields(kind)}
     if unknown:
-        raise DataSheetError(f"{source}: [{name}] has unknown keys {sorted(unknown)}")
+        raise error(f"{source}: [{name}] has unknown keys {sorted(unknown)}")
     return kind(**values)
 
 
-__all__ = ["DataSheet", "DataSheetError", "Drive", "Geometry", "Nominal", "DEFAULT_DATASHEET"]
+__all__ = ["DataSheet", "DataSheetError", "Drive", "Geometry", "Nominal", "DEFAULT_DATASHEET", "read_table"]

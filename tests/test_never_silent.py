@@ -288,6 +288,18 @@ def test_vehicle_descriptions_refuse_non_finite_and_unphysical_values(tmp_path, 
         VehicleDescription.load(path)
 
 
+def test_a_vehicle_description_whose_section_is_not_a_table_is_refused_naming_it(tmp_path):
+    """``noise = 0.1`` in place of a [noise] table: the description's reader names the section (it is
+    the data sheet's table reader, with the description's error type)."""
+    text = PROTOTYPE.read_text()
+    head, _, tail = text.partition("[noise]")
+    body = tail.split("\n[", 1)
+    path = tmp_path / "vehicle.toml"
+    path.write_text("noise = 0.1\n" + head + ("[" + body[1] if len(body) > 1 else ""))
+    with pytest.raises(DescriptionError, match=r"\[noise\] must be a table"):
+        VehicleDescription.load(path)
+
+
 def test_a_data_sheet_refuses_a_cycle_time_no_can_bus_can_serve():
     text = (Path(__file__).resolve().parents[1] / "qomni" / "data" / "prototype_datasheet.toml").read_text()
     with pytest.raises(DataSheetError, match=r"\[drive\] key 'cycle_time' must be within"):
