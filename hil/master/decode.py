@@ -18,7 +18,9 @@ Per cycle (CiA 301 SYNC semantics, docs/conventions.md):
   expedited SDO upload response of 0x6076:00, as every master reads it) if present, else from a DCF's
   ParameterValue, else from the caller (data sheet).
 
-A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeReport.incomplete`).
+A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeReport.incomplete`). A log cut
+while it was written (a BLF shorter than its header announces, a text log whose last line has no line
+end) is decoded up to the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
 from __future__ import annotations
 
