@@ -126,13 +126,14 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     z = unsteered_z(wheels.fit.nonlinear)
     if z is None:
         return
-    sigma = None if unsteered_sigma is None else unsteered_sigma(wheels.fit.nonlinear)
-    bar = _unsteered_bar(wheels, sigma)
+    predicted = _predicted_unsteered_z(wheels, None if unsteered_sigma is None
+                                       else unsteered_sigma(wheels.fit.nonlinear))
+    bar = _unsteered_bar(predicted)
     z_lc = None if steered_z is None else steered_z(steering.fit.nonlinear)
     _wheels_or_steering(wheels, steering, z, bar)
     if both is not None and z >= bar and (wheels.significant or steering.significant):
         _in_both_joints(both, wheels, steering, z, z_lc)
-    evidence = _placement_evidence(wheels, sigma, z, bar, z_lc, steering.fit.nonlinear)
+    evidence = _placement_evidence(z, bar, predicted, z_lc, steering.fit.nonlinear)
     for c in (wheels, steering, both):
         if c is not None:
             c.notes.append(evidence)
@@ -148,10 +149,9 @@ def _predicted_unsteered_z(wheels, sigma: float | None) -> float | None:
     return (theta - theta0) / sigma
 
 
-def _placement_evidence(wheels, sigma, z: float, bar: float, z_lane_change: float | None,
+def _placement_evidence(z: float, bar: float, predicted: float | None, z_lane_change: float | None,
                         v_s_steering) -> str:
     """The note that states what the placement read (every Stribeck variant carries it)."""
-    predicted = _predicted_unsteered_z(wheels, sigma)
     text = f"placement: the wheel joints' level in the steps without steering motion z = {z:.2f} (bar {bar:.2f}"
     text += ")" if predicted is None else f", the wheel variant predicts {predicted:.2f})"
     if z_lane_change is not None:
@@ -160,11 +160,10 @@ def _placement_evidence(wheels, sigma, z: float, bar: float, z_lane_change: floa
     return text
 
 
-def _unsteered_bar(wheels, sigma: float | None) -> float:
+def _unsteered_bar(predicted: float | None) -> float:
     """The z the wheel variant's level in the unsteered steps must reach: WHEEL_FRICTION_Z, or half the z
-    its level fitted on the steering steps (beyond the reference's) would have there at ``sigma``, where
-    that is lower (:func:`tell_friction_joints_apart`)."""
-    predicted = _predicted_unsteered_z(wheels, sigma)
+    its level fitted on the steering steps (beyond the reference's) would have there (``predicted``, from
+    :func:`_predicted_unsteered_z`), where that is lower (:func:`tell_friction_joints_apart`)."""
     return min(WHEEL_FRICTION_Z, 0.5 * predicted) if predicted is not None and predicted > 0 \
         else WHEEL_FRICTION_Z
 

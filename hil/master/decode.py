@@ -207,10 +207,6 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     report = report if report is not None else DecodeReport()
     rated = _rated_torques(path, mapping, rated_torque, report)
     reader = _open_log(path, report)
-    announced = getattr(reader, "file_size", None)                   # BLF: the size its header announces
-    if announced and path.stat().st_size < announced:
-        report.warnings.append(f"{path}: {path.stat().st_size} of the {announced} bytes the BLF header "
-                               "announces: the file is cut; only the frames before the cut are decoded")
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
 
@@ -218,27 +214,29 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
 def _open_log(path: Path, report: DecodeReport | None = None):
     """python-can's reader of the log's format; DecodeError naming the file if it cannot read it.
 
-    A text log (candump ``-L``, ASC, CSV, TRC) whose last line has no line end was cut while it was
-    written: that line may still parse, into a frame with part of its data, so the reader is given the
-    file up to its last complete line and ``report`` a warning (as for a BLF shorter than its header
-    announces)."""
+    A log cut while it was written is read up to the cut, with a warning in ``report``: a BLF shorter than
+    its header announces ends at its last whole object; a text log (candump ``-L``, ASC, CSV, TRC) whose
+    last line has no line end is given to its reader up to its last complete line, since the cut line may
+    still parse, into a frame with part of its data."""
+    size = path.stat().st_size
     reader_class = MESSAGE_READERS.get(path.suffix.lower())
+    complete = size
     if reader_class is not None and issubclass(reader_class, TextIOMessageReader):
         complete = _complete_lines_size(path)
-        if complete < path.stat().st_size:
-            if report is not None:
-                report.warnings.append(f"{path}: its last line (from byte {complete}) has no line end: the "
-                                       "file is cut; only the lines before it are decoded")
-            try:
-                return reader_class(_text_head(path, complete))
-            except Exception as exc:                                 # noqa: BLE001 - a format's own parse error
-                raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
     try:
-        return can.LogReader(str(path))
+        reader = reader_class(_text_head(path, complete)) if complete < size else can.LogReader(str(path))
     except ValueError as exc:
         raise DecodeError(f"{path}: {exc} (python-can reads .blf, .asc, .log, .csv, .trc, .mf4)") from None
     except Exception as exc:                                         # noqa: BLE001 - a format's own parse error
         raise DecodeError(f"{path}: not a readable log: {type(exc).__name__}: {exc}") from None
+    announced = getattr(reader, "file_size", None)                   # BLF: the size its header announces
+    if report is not None and complete < size:
+        report.warnings.append(f"{path}: its last line (from byte {complete}) has no line end: the file is "
+                               "cut; only the lines before it are decoded")
+    elif report is not None and announced and size < announced:
+        report.warnings.append(f"{path}: {size} of the {announced} bytes the BLF header announces: the file "
+                               "is cut; only the frames before the cut are decoded")
+    return reader
 
 
 def _complete_lines_size(path: Path, chunk: int = 1 << 16) -> int:
