@@ -25,12 +25,12 @@ weighted held-out residual over all channels does not grow (``Evaluation.confirm
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
 
-from qomni.conventions import P1_NAMES
+from qomni.conventions import EPSILON, P1_NAMES
 from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
@@ -364,6 +364,95 @@ def level_z(problem: Problem, model: IdentificationResult, h: Hypothesis, nonlin
         raise ValueError(f"{h.label}: level_z needs a one-coefficient hypothesis")
     fit = solve(problem, model, h, nonlinear, lag, cache, theta0=theta0)
     return None if fit is None else coefficient_z(fit, 0)
+
+
+def with_step_levels(h: Hypothesis, names: tuple[str, ...]) -> Hypothesis:
+    """``h``'s columns followed by one Coulomb level per torque channel in ``names``: tanh(ṡ/ε) of the
+    channel's own coordinate (ε of (16)), in that channel alone; coefficients ``h.parameters`` then
+    ``names``. Shape per channel (n, len(h.parameters) + len(names)); None where neither acts."""
+    width = len(h.parameters)
+
+    def columns(ch: ChannelData, nonlinear):
+        own = h.columns(ch, nonlinear)
+        if ch.kind != "torque" or ch.name not in names:
+            return None if own is None else np.hstack([own, np.zeros((len(own), len(names)))])
+        out = np.zeros((len(ch.y), width + len(names)))
+        if own is not None:
+            out[:, :width] = own
+        out[:, width + names.index(ch.name)] = np.tanh(ch.velocity / EPSILON)
+        return out
+    return replace(h, variant=f"{h.variant}+step levels", parameters=h.parameters + tuple(names),
+                   columns=columns, resolve=None)
+
+
+def level_beside_step_levels(problem: Problem, reference: Problem | None, model: IdentificationResult,
+                             h: Hypothesis, nonlinear, lag: int, cache: dict | None = None
+                             ) -> tuple[float, float] | None:
+    """(z, σ) of a one-coefficient hypothesis' level on ``problem`` beside a free Coulomb level per
+    fitted torque channel (:func:`with_step_levels`), every channel weighted by what that fit leaves of
+    it (:func:`reweighted`); z beyond the level the reference run's channels hold under the same
+    weights (beyond 0 without ``reference``). None if the hypothesis has no column there.
+
+    For a level that is a low-speed shape (a friction peak) where each channel may carry its own
+    Coulomb-like offset that no base parameter holds: a model identified on the data has one Coulomb
+    coefficient for all its steps, fitted as a compromise between them, and each step keeps the
+    difference. Left in, that offset counts as noise in the channel weights and hides the shape.
+
+    Raises:
+        ValueError: the hypothesis has more than one coefficient."""
+    if len(h.parameters) != 1:
+        raise ValueError(f"{h.label}: level_beside_step_levels needs a one-coefficient hypothesis")
+    names = tuple(ch.name for i, ch in enumerate(problem.channels)
+                  if ch.kind == "torque" and problem.fit_rows[i].any() and problem.weights[i] > 0)
+    levelled = with_step_levels(h, names)
+    first = solve(problem, model, levelled, nonlinear, lag, cache)
+    if first is None:
+        return None
+    weighted = reweighted(problem, first, lag, cache)
+    theta0 = None
+    if reference is not None:
+        by_name = dict(zip((c.name for c in weighted.channels), weighted.weights))
+        ref_weights = np.array([by_name.get(c.name, w) for c, w in zip(reference.channels, reference.weights)])
+        ref = solve(replace(reference, weights=ref_weights), model, levelled, nonlinear, lag, cache)
+        theta0 = None if ref is None else ref.theta
+    fit = solve(weighted, model, levelled, nonlinear, lag, cache, theta0=theta0)
+    return coefficient_z(fit, 0), float(math.sqrt(fit.theta_cov[0, 0]))
+
+
+def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None) -> Problem:
+    """The same problem with every channel weighted by 1/(σ_c √L_c), σ_c the RMS of what ``fit`` leaves
+    of the channel's residual on its fit rows: the second step of feasible weighted least squares.
+
+    :func:`make_problem` weights a channel by the RMS of the model's own residual, which holds whatever
+    the model misses there — the effect under test included. Where one channel's residual is dominated
+    by a term the fit then explains, that term has counted as noise and every coefficient's σ is
+    inflated by it; weighting by what the fit leaves counts only the noise. A channel the fit leaves
+    nothing of (a paired reference run's own channels), or one not fitted, keeps its weight.
+
+    Args:
+        problem: the problem ``fit`` was solved on (:func:`solve`).
+        fit: its solution; its hypothesis' columns at ``fit.nonlinear`` with the full θ (θ₀ included)
+            are taken out with the base and nuisance terms.
+        lag: rows of the filter's correlation (:func:`.problem.channel_lag`).
+    """
+    weights = problem.weights.copy()
+    for i, ch in enumerate(problem.channels):
+        rows = problem.fit_rows[i]
+        if not rows.any() or weights[i] == 0:
+            continue
+        left = ch.residual.copy()
+        if ch.kind == "torque":
+            left -= ch.base @ fit.delta_p
+        elif ch.name in fit.offsets:
+            left -= ch.nuisance @ fit.offsets[ch.name]
+        if fit.hypothesis is not None and len(fit.theta):
+            cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
+            if cols is not None:
+                left -= cols[:, :len(fit.theta)] @ np.asarray(fit.theta)
+        rms = float(np.sqrt(np.mean(left[rows] ** 2)))
+        if rms > 0:
+            weights[i] = 1.0 / (rms * math.sqrt(problem.correlation_rows(i, lag)))
+    return replace(problem, weights=weights)
 
 
 def coefficient_z(fit: Fit, index: int) -> float:

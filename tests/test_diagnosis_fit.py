@@ -456,3 +456,66 @@ def test_a_smooth_column_on_a_wandering_residual_is_calibrated_only_counted_by_i
             rejected[key] += fitting.f_test(base, ext, 0) < 0.05
     assert rejected["L"] / trials > 0.3, rejected
     assert rejected["own"] / trials < 0.12, rejected
+
+
+def _offset_channel(name, rng, peak=0.0, offset=30.0):
+    """A torque channel whose residual holds a Coulomb-like offset ``offset``·tanh(v/ε) of its own, a
+    low-speed peak ``peak``·exp(−(v/0.05)²)·sign v and unit noise; weighted as make_problem weights it
+    (1/RMS of the residual)."""
+    t = np.arange(N_ROWS) * 0.004
+    v = 0.4 * np.sin(2 * np.pi * t / 0.8) + 0.01 * rng.normal(size=N_ROWS)
+    phi = np.exp(-(v / 0.05) ** 2) * np.sign(v)
+    residual = offset * np.tanh(v / 0.01) + peak * phi + rng.normal(size=N_ROWS)
+    return NS(name=name, kind="torque", base=rng.normal(size=(N_ROWS, 10)), residual=residual, y=residual,
+              velocity=v, nuisance=np.zeros((N_ROWS, 0)), fitted=np.ones(N_ROWS, bool), time=t, phi=phi,
+              context=NS(k=3))
+
+
+def _raw_weighted(channels):
+    problem = _problem(channels)
+    problem.weights = np.array([1 / np.sqrt(np.mean(c.residual ** 2)) for c in channels])
+    return problem
+
+
+def test_reweighted_weights_a_channel_by_what_the_fit_leaves():
+    rng = np.random.default_rng(11)
+    ch = _channel("a", rng, planted=20.0)
+    problem = _problem([ch])
+    problem.weights = np.array([1 / np.sqrt(np.mean(ch.residual ** 2))])
+    fit = fitting.solve(problem, MODEL, LEVEL, None, 1)
+    again = fitting.reweighted(problem, fit, 1)
+    assert problem.weights[0] < 0.1                     # the planted term counted as noise
+    assert again.weights[0] == pytest.approx(1.0, rel=0.1)   # the noise alone: σ = 1
+    refit = fitting.solve(again, MODEL, LEVEL, None, 1)
+    assert np.sqrt(refit.theta_cov[0, 0]) < 0.2 * np.sqrt(fit.theta_cov[0, 0])
+
+
+def test_step_levels_uncover_a_low_speed_peak_beside_a_coulomb_offset():
+    rng = np.random.default_rng(12)
+    problem = _raw_weighted([_offset_channel("straight/x_ch", rng, peak=1.0),
+                             _offset_channel("arc_left/x_ch", rng, peak=1.0, offset=-15.0)])
+    plain = fitting.level_z(problem, MODEL, LEVEL, None, 1)
+    z, sigma = fitting.level_beside_step_levels(problem, None, MODEL, LEVEL, None, 1)
+    assert plain < 1.645 < 5 < z
+    assert sigma < 0.2
+
+
+def test_level_beside_step_levels_is_calibrated_under_the_null():
+    rng = np.random.default_rng(13)
+    z = [fitting.level_beside_step_levels(_raw_weighted([_offset_channel("straight/x_ch", rng, offset=25.0)]),
+                                          None, MODEL, LEVEL, None, 1)[0] for _ in range(200)]
+    assert np.mean(z) == pytest.approx(0.0, abs=0.2)
+    assert np.std(z) == pytest.approx(1.0, abs=0.2)
+    assert np.mean(np.array(z) > 1.645) <= 0.1
+
+
+def test_level_beside_step_levels_is_taken_beyond_the_reference_level():
+    rng = np.random.default_rng(14)
+    data = _raw_weighted([_offset_channel("straight/x_ch", rng, peak=4.0, offset=25.0)])
+    ref_channel = _offset_channel("straight/x_ch", rng, peak=4.0, offset=-10.0)
+    ref_channel.residual = ref_channel.y = -10.0 * np.tanh(ref_channel.velocity / 0.01) + 4.0 * ref_channel.phi
+    reference = _problem([ref_channel])
+    beyond_zero, _ = fitting.level_beside_step_levels(data, None, MODEL, LEVEL, None, 1)
+    beyond_reference, _ = fitting.level_beside_step_levels(data, reference, MODEL, LEVEL, None, 1)
+    assert beyond_zero > 10
+    assert abs(beyond_reference) < 3

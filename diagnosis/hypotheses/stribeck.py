@@ -244,6 +244,15 @@ def unsteered_wheel_level(all_rows, ref_problem, model, lag: int, cache: dict):
     the reference run's level in the same steps (beyond 0 without a reference run), σ of the level; None
     where the variant has no column there. One fit per v_s, kept for a second call.
 
+    The level is fitted beside a free Coulomb level per step, every channel weighted by what that fit
+    leaves of it (:func:`qomni.diagnosis.fit.level_beside_step_levels`). Where low-speed friction
+    differs from the model's, the steps keep Coulomb-like levels ±c·tanh(ṡ/ε) of their own that no base
+    parameter holds (a model identified on the data has one d_cw for all steps; draw 8795's straight
+    step, paired with the twin, read about −12 N on two steering-joint cases and +20 N on a both-joint
+    case of breakaway ratio 2). The question here is the low-speed peak, which such a level does not
+    hold; fitted without it, the level counted as noise in the channel weights and hid that case's peak
+    (z = 1.4; 9.6 with the levels taken out).
+
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
     the steering joints; on all rows 1.2–2.0 (ideal runs ≤ 0.05, steering-joint friction ≤ 0.2)."""
@@ -259,11 +268,8 @@ def unsteered_wheel_level(all_rows, ref_problem, model, lag: int, cache: dict):
 
     def level(v_s):
         if v_s not in fitted:
-            ref = None if reference is None else fitting.solve(reference, model, STRIBECK_WHEELS, v_s, lag, cache)
-            fit = fitting.solve(rows, model, STRIBECK_WHEELS, v_s, lag, cache,
-                                theta0=None if ref is None else ref.theta)
-            fitted[v_s] = None if fit is None else (fitting.coefficient_z(fit, 0),
-                                                    float(np.sqrt(fit.theta_cov[0, 0])))
+            fitted[v_s] = fitting.level_beside_step_levels(rows, reference, model, STRIBECK_WHEELS, v_s, lag,
+                                                           cache)
         return fitted[v_s]
     return level
 
