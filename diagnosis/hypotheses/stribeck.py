@@ -92,7 +92,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     fits them a little better. Only steps in which the wheels turn without steering (modes 2–4) tell
     them apart: there the steering joints' variant has no column. ``unsteered_z(v_s)`` is the z of the
     wheel variant's level fitted on those steps alone beyond the reference run's level there
-    (:func:`qomni.diagnosis.fit.level_z`). When the steering variant is significant and that z reaches
+    (:func:`unsteered_wheel_level`). When the steering variant is significant and that z reaches
     ``WHEEL_FRICTION_Z``, the wheel variant is reported instead: the steering steps establish low-speed
     friction, the unsteered steps place it in the wheel joints. Below it the steering variant is, even
     where the wheel variant removes a little more held-out residual: the steps that could show wheel-joint
