@@ -247,9 +247,9 @@ def unsteered_wheel_level(all_rows, ref_problem, model, lag: int, cache: dict):
     The level is fitted beside a free Coulomb level per step, every channel weighted by what that fit
     leaves of it (:func:`qomni.diagnosis.fit.level_beside_step_levels`). Where low-speed friction
     differs from the model's, the steps keep Coulomb-like levels ±c·tanh(ṡ/ε) of their own that no base
-    parameter holds (a model identified on the data has one d_cw for all steps; draw 8795's straight
-    step, paired with the twin, read about −12 N on two steering-joint cases and +20 N on a both-joint
-    case of breakaway ratio 2). The question here is the low-speed peak, which such a level does not
+    parameter holds: draw 8795's straight step, paired with the twin, holds −5 and −12 N on two
+    steering-joint cases and +16 N on a both-joint case of breakaway ratio 2, nearly all of its RMS,
+    and the left arc of the same cases +0.5, +17 and −18 N, so no one shift of d_cw holds them. The question here is the low-speed peak, which such a level does not
     hold; fitted without it, the level counted as noise in the channel weights and hid that case's peak
     (z = 1.4; 9.6 with the levels taken out).
 
