@@ -35,7 +35,7 @@ from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
 from .hypotheses.base import Hypothesis, Magnitude, plausible
-from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate
+from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate, predicted_residual
 from .problem import Fit, Problem, cached_columns
 
 #: Significance level of the F test (first effect; further effects in forward selection: alpha_more).
@@ -431,8 +431,8 @@ def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None) 
 
     Args:
         problem: the problem ``fit`` was solved on (:func:`solve`).
-        fit: its solution; its hypothesis' columns at ``fit.nonlinear`` with the full θ (θ₀ included)
-            are taken out with the base and nuisance terms.
+        fit: its solution; what it leaves of a channel is :func:`.evaluation.predicted_residual` on
+            the fit rows (its hypothesis' columns with the full θ, θ₀ included).
         lag: rows of the filter's correlation (:func:`.problem.channel_lag`).
     """
     weights = problem.weights.copy()
@@ -440,16 +440,7 @@ def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None) 
         rows = problem.fit_rows[i]
         if not rows.any() or weights[i] == 0:
             continue
-        left = ch.residual.copy()
-        if ch.kind == "torque":
-            left -= ch.base @ fit.delta_p
-        elif ch.name in fit.offsets:
-            left -= ch.nuisance @ fit.offsets[ch.name]
-        if fit.hypothesis is not None and len(fit.theta):
-            cols = cached_columns(fit.hypothesis, fit.nonlinear, ch, cache)
-            if cols is not None:
-                left -= cols[:, :len(fit.theta)] @ np.asarray(fit.theta)
-        rms = float(np.sqrt(np.mean(left[rows] ** 2)))
+        rms = float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
         if rms > 0:
             weights[i] = 1.0 / (rms * math.sqrt(problem.correlation_rows(i, lag)))
     return replace(problem, weights=weights)

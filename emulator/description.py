@@ -8,7 +8,7 @@ physics ([truth], [body], [noise]). See ``emulator/data/prototype.toml`` for the
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 

@@ -249,9 +249,10 @@ def unsteered_wheel_level(all_rows, ref_problem, model, lag: int, cache: dict):
     differs from the model's, the steps keep Coulomb-like levels ±c·tanh(ṡ/ε) of their own that no base
     parameter holds: draw 8795's straight step, paired with the twin, holds −5 and −12 N on two
     steering-joint cases and +16 N on a both-joint case of breakaway ratio 2, nearly all of its RMS,
-    and the left arc of the same cases +0.5, +17 and −18 N, so no one shift of d_cw holds them. The question here is the low-speed peak, which such a level does not
-    hold; fitted without it, the level counted as noise in the channel weights and hid that case's peak
-    (z = 1.4; 9.6 with the levels taken out).
+    and the left arc of the same cases +0.5, +17 and −18 N, so no one shift of d_cw holds them. The
+    question here is the low-speed peak, which such a level does not hold; fitted without it, the
+    level counted as noise in the channel weights and hid that case's peak (z = 1.4; 9.6 with the
+    levels taken out).
 
     ``all_rows``: the diagnosed run with every row a fit row. Fitted on the alternate windows alone, the
     low wheel-joint cases of full campaigns (breakaway 1.5× d_c) reached z = 1.0–1.5 and were placed in
