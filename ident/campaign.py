@@ -27,6 +27,7 @@ from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .json_values import json_number
 from .recording import SignalWriter
+from .regressor import VELOCITY_THRESHOLD
 from .rundir import METADATA, RUN_FORMAT, SIGNALS, write_json
 
 IDENTIFICATION_STEPS = ("steer_left", "steer_right", "straight", "rotation")
@@ -104,6 +105,13 @@ class CampaignSettings:
     arc_duration: float = 10.0
     arc_inner_alpha: float = 1.25
     arc_x_ddot_max: float = 1.6
+    # The identification steps' design criterion (excitation.CRITERIA). "min_cond" minimises each
+    # viscous/Coulomb pair's condition number, the pairs that bound cond(Θ̂₁ᵀΘ̂₁) (docs/identification.md,
+    # "Optimised excitation"), with ``min_cond_harmonics`` harmonics of a base period it chooses itself;
+    # "richness" is the random-start design of ``n_harmonics`` harmonics over ``steer_period`` /
+    # ``chassis_period``, with ``seed``. The arcs always use the latter.
+    excitation: str = "min_cond"
+    min_cond_harmonics: int = 16
     n_harmonics: int = 5
     steer_period: float = 4.0  # s, base period of the steering excitation (repeated over the step)
     chassis_period: float = 5.0  # s, base period of the straight and rotation excitation
@@ -116,8 +124,12 @@ class CampaignSettings:
         setting with a fraction, a duration, limit or period ≤ 0 (the arcs' duration and the rest and
         alignment times may be 0), fewer than one lane change or harmonic."""
         may_be_zero = {"arc_duration", "align_duration", "rest_duration", "seed"}
-        at_least_one = {"lane_changes", "n_harmonics"}
+        at_least_one = {"lane_changes", "n_harmonics", "min_cond_harmonics"}
+        if self.excitation not in excitation.CRITERIA:
+            raise ValueError(f"settings.excitation must be one of {excitation.CRITERIA}, got {self.excitation!r}")
         for f in fields(self):
+            if f.name == "excitation":
+                continue
             where = f"settings.{f.name}"
             value = json_number(getattr(self, f.name), where)
             if f.type in ("int", int):
@@ -134,8 +146,9 @@ class CampaignSettings:
 
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":
-        """A short campaign (≈ 46 s emulated) for tests and smoke runs."""
-        short = dict(steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
+        """A short campaign (≈ 46 s emulated) for tests and smoke runs; its 5 s steering steps at 1.5 rad/s
+        leave the min_cond design little room (a pair cond of 6.8 planned), so it keeps the richness design."""
+        short = dict(excitation="richness", steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
                      lane_change_duration=8.0, align_duration=1.5, rest_duration=0.3,
                      alpha_dot_max=1.5, alpha_ddot_max=6.0, lane_distance=3.0, lane_width=0.1,
                      n_harmonics=4, arc_duration=4.0)
@@ -156,23 +169,28 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
         raise ValueError(f"arc_inner_alpha = {s.arc_inner_alpha} rad must stay below the steering stops "
                          f"({g.steering_limit:.4g} rad) by more than {STOP_MARGIN} rad")
     common = dict(n_harmonics=s.n_harmonics)
-    # A long step is several repetitions of a short base period: a single slow period would keep
-    # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
+
+    def designed(coordinate: str, duration: float, period: float) -> dict:
+        """The design keywords of one excited coordinate."""
+        if s.excitation == "min_cond":
+            return dict(criterion="min_cond", threshold=VELOCITY_THRESHOLD[coordinate],
+                        n_harmonics=s.min_cond_harmonics)
+        # A long step is several repetitions of a short base period: a single slow period would keep
+        # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
+        return dict(periods=_periods(duration, period), **common)
+
     steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
-                 alpha_ddot_max=s.alpha_ddot_max, periods=_periods(s.steer_duration, s.steer_period),
-                 **common)
+                 alpha_ddot_max=s.alpha_ddot_max, **designed("alpha_l", s.steer_duration, s.steer_period))
     steps = [
         excitation.steer_left_excitation(seed=s.seed + 1, **steer),
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),
         excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
                                        x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
-                                       periods=_periods(s.straight_duration, s.chassis_period),
-                                       seed=s.seed + 3, **common),
+                                       seed=s.seed + 3, **designed("x_ch", s.straight_duration, s.chassis_period)),
         excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
                                        gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
                                        gamma_ddot_max=s.gamma_ddot_max,
-                                       periods=_periods(s.rotation_duration, s.chassis_period),
-                                       seed=s.seed + 4, **common),
+                                       seed=s.seed + 4, **designed("gamma_ch", s.rotation_duration, s.chassis_period)),
         excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
                                lane_width=s.lane_width, changes=s.lane_changes,
                                alpha_v_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike
 from scipy import integrate, optimize
 
 from .fourier import AnalyticTrajectory, Trajectory, design_fourier_trajectory
+from .min_cond_design import design_min_cond_trajectory
 from .kinematics import f_icr_lb
 
 __all__ = [
@@ -104,13 +105,35 @@ class ExcitationStep:
         return out
 
 
+#: Design criteria of the identification steps' Fourier coefficients: ``"richness"`` the random-start
+#: richness design (:func:`design_fourier_trajectory`), ``"min_cond"`` the viscous/Coulomb pair's condition
+#: number (:func:`design_min_cond_trajectory`; needs the estimator's ``threshold``).
+CRITERIA = ("richness", "min_cond")
+
+
+def _design(criterion: str, threshold: float | None, *, duration: float, q_max: float, qd_max: float,
+            qdd_max: float, n_harmonics: int, seed: int, **kw) -> Trajectory:
+    """One excited coordinate over ±q_max, by ``criterion`` (:data:`CRITERIA`).
+
+    Raises: ValueError: an unknown criterion, ``min_cond`` without a threshold or with richness-only
+    keywords, or limits the design cannot meet."""
+    if criterion == "richness":
+        return design_fourier_trajectory(duration=duration, q_min=-q_max, q_max=q_max, qd_max=qd_max,
+                                         qdd_max=qdd_max, n_harmonics=n_harmonics, seed=seed, **kw)
+    if criterion == "min_cond":
+        if threshold is None or kw:
+            raise ValueError(f"the min_cond design needs the threshold and takes no {sorted(kw)}")
+        return design_min_cond_trajectory(duration=duration, q_min=-q_max, q_max=q_max, qd_max=qd_max,
+                                          qdd_max=qdd_max, threshold=threshold, n_harmonics=n_harmonics)
+    raise ValueError(f"unknown excitation criterion {criterion!r}; one of {CRITERIA}")
+
+
 def _steer_excitation(side: str, *, duration: float, alpha_max: float, alpha_dot_max: float,
-                      alpha_ddot_max: float, n_harmonics: int, seed: int, **kw) -> ExcitationStep:
+                      alpha_ddot_max: float, n_harmonics: int, seed: int, criterion: str = "richness",
+                      threshold: float | None = None, **kw) -> ExcitationStep:
     """Mode-1 step: α of ``side`` ("l" or "r") excited, the other side held at 0 (section 6.2)."""
-    tr = design_fourier_trajectory(
-        duration=duration, q_min=-alpha_max, q_max=alpha_max, qd_max=alpha_dot_max,
-        qdd_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw,
-    )
+    tr = _design(criterion, threshold, duration=duration, q_max=alpha_max, qd_max=alpha_dot_max,
+                 qdd_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
     other = "r" if side == "l" else "l"
     name = "steer_left" if side == "l" else "steer_right"
     return ExcitationStep(name, 1, {f"alpha_{side}": tr}, {f"alpha_{other}": 0.0})
@@ -124,14 +147,19 @@ def steer_left_excitation(
     alpha_ddot_max: float = 4.0,
     n_harmonics: int = 6,
     seed: int = 1,
+    criterion: str = "richness",
+    threshold: float | None = None,
     **kw,
 ) -> ExcitationStep:
     """Step 1 (mode k = 1): α_l(t) Fourier excitation with |α_l| ≤ alpha_max (rad), α_r ≡ 0.
 
-    Limits in rad, rad/s, rad/s². Extra keywords go to :func:`design_fourier_trajectory`.
+    Limits in rad, rad/s, rad/s². ``criterion`` (:data:`CRITERIA`) and ``threshold`` (rad/s, the
+    estimator's stiction threshold, for ``min_cond``) choose the design; extra keywords go to
+    :func:`design_fourier_trajectory`.
     """
     return _steer_excitation("l", duration=duration, alpha_max=alpha_max, alpha_dot_max=alpha_dot_max,
-                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
+                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed,
+                             criterion=criterion, threshold=threshold, **kw)
 
 
 def steer_right_excitation(
@@ -142,11 +170,14 @@ def steer_right_excitation(
     alpha_ddot_max: float = 4.0,
     n_harmonics: int = 6,
     seed: int = 2,
+    criterion: str = "richness",
+    threshold: float | None = None,
     **kw,
 ) -> ExcitationStep:
     """Step 2 (mode k = 1): α_r(t) Fourier excitation with |α_r| ≤ alpha_max (rad), α_l ≡ 0."""
     return _steer_excitation("r", duration=duration, alpha_max=alpha_max, alpha_dot_max=alpha_dot_max,
-                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
+                             alpha_ddot_max=alpha_ddot_max, n_harmonics=n_harmonics, seed=seed,
+                             criterion=criterion, threshold=threshold, **kw)
 
 
 def straight_excitation(
@@ -157,16 +188,16 @@ def straight_excitation(
     x_ddot_max: float = 0.5,
     n_harmonics: int = 6,
     seed: int = 3,
+    criterion: str = "richness",
+    threshold: float | None = None,
     **kw,
 ) -> ExcitationStep:
     """Step 3 (mode k = 2, α_v ≡ 0): x_ch(t) with |x_ch| ≤ x_max (m), limits in m/s, m/s².
 
     Held: α_v = α_l = α_r = 0.
     """
-    tr = design_fourier_trajectory(
-        duration=duration, q_min=-x_max, q_max=x_max, qd_max=x_dot_max, qdd_max=x_ddot_max,
-        n_harmonics=n_harmonics, seed=seed, **kw,
-    )
+    tr = _design(criterion, threshold, duration=duration, q_max=x_max, qd_max=x_dot_max,
+                 qdd_max=x_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
     return ExcitationStep("straight", 2, {"x_ch": tr}, {"alpha_v": 0.0, "alpha_l": 0.0, "alpha_r": 0.0})
 
 
@@ -180,16 +211,16 @@ def rotation_excitation(
     gamma_ddot_max: float = 0.5,
     n_harmonics: int = 6,
     seed: int = 4,
+    criterion: str = "richness",
+    threshold: float | None = None,
     **kw,
 ) -> ExcitationStep:
     """Step 4 (mode k = 4): γ_ch(t) with |γ_ch| ≤ gamma_max (rad); limits in rad/s, rad/s².
 
     ``l``, ``b`` (m) give the held steering angles α = arctan(l/b)·(−1, +1) of mode 4.
     """
-    tr = design_fourier_trajectory(
-        duration=duration, q_min=-gamma_max, q_max=gamma_max, qd_max=gamma_dot_max,
-        qdd_max=gamma_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw,
-    )
+    tr = _design(criterion, threshold, duration=duration, q_max=gamma_max, qd_max=gamma_dot_max,
+                 qdd_max=gamma_ddot_max, n_harmonics=n_harmonics, seed=seed, **kw)
     alpha4 = math.atan2(l, b)
     return ExcitationStep("rotation", 4, {"gamma_ch": tr}, {"alpha_l": -alpha4, "alpha_r": alpha4})
 

@@ -13,6 +13,13 @@ from qomni.conventions import PARAMETER_NAMES
 #: Default stiction threshold on |generalized velocity| (rad/s or m/s).
 DEFAULT_VELOCITY_THRESHOLD = 0.05
 
+#: Stiction thresholds on the generalized velocity (paper section 7), by coordinate: rad/s or m/s.
+#: The paper gives no value. A row is only usable when the zero-phase filter (time scale 1/ω_g = 25 ms)
+#: does not smear a velocity reversal — where the drive really sticks, unlike tanh(v/ε) — into it:
+#: |ṡ| ≳ |s̈|_max/ω_g, i.e. 0.2 rad/s for the steering (≈ 6 rad/s² excitation) and 0.05 for the chassis.
+VELOCITY_THRESHOLD = {"alpha_l": 0.2, "alpha_r": 0.2, "alpha_v": 0.2, "x_ch": 0.05,
+                      "gamma_ch": 0.05, "*": 0.05}
+
 
 
 @dataclass

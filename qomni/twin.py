@@ -182,15 +182,16 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
 
 def _settings_of(meta: dict):
     """The campaign settings the data's run recorded (``metadata.json`` ``settings``). A run that does not
-    record its number of lane changes drove a single one, and one that does not record its arcs drove
-    none.
+    record its number of lane changes drove a single one, one that does not record its arcs drove
+    none, and one that does not record its excitation criterion used the richness design.
 
     Raises:
         TwinError: a recorded setting the campaign does not know, or one it refuses."""
     from qomni.ident.campaign import CampaignSettings
 
     try:
-        return CampaignSettings(**{"lane_changes": 1, "arc_duration": 0.0, **meta.get("settings", {})})
+        return CampaignSettings(**{"lane_changes": 1, "arc_duration": 0.0, "excitation": "richness",
+                                   **meta.get("settings", {})})
     except (TypeError, ValueError) as exc:
         raise TwinError(f"metadata.json settings: {exc}") from exc
 

@@ -63,6 +63,7 @@ def test_the_twin_repeats_the_data_runs_campaign_settings_and_drives_no_arcs_a_r
     assert _settings_of({"settings": {"seed": 4, "arc_duration": 10.0}}).arc_duration == 10.0
     older = _settings_of({"settings": {"seed": 4}})
     assert older.arc_duration == 0.0 and older.lane_changes == 1 and older.seed == 4
+    assert older.excitation == "richness"           # recorded before the min_cond design existed
     assert _settings_of({"settings": {**CampaignSettings().__dict__}}) == CampaignSettings()
     with pytest.raises(TwinError, match="settings"):
         _settings_of({"settings": {"retired_setting": 1}})

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -37,6 +38,10 @@ def campaign(
     datasheet: Optional[Path] = typer.Option(None, help="Data-sheet TOML if different from --vehicle."),
     seed: int = typer.Option(0, min=0, help="Seed of the embedded emulator's noise."),
     quick: bool = typer.Option(False, help="Short campaign (≈ 46 s emulated) for smoke tests."),
+    excitation: Optional[str] = typer.Option(
+        None, help="Design criterion of the identification steps: 'min_cond' (the viscous/Coulomb pairs' "
+                   "condition number; the full campaign's default) or 'richness' (the quick campaign's "
+                   "default); docs/identification.md."),
     single_axis: Optional[bool] = typer.Option(
         None, "--single-axis/--no-single-axis",
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
@@ -84,6 +89,11 @@ def campaign(
     if single_axis:
         _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
     settings = CampaignSettings.quick() if quick else CampaignSettings()
+    if excitation is not None:
+        try:
+            settings = replace(settings, excitation=excitation)
+        except ValueError as exc:
+            fail(str(exc))
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
         controller = ControllerSettings(probe=dead_time_probe, probe_on_limit_cycle=limit_cycle_probe)

@@ -1,0 +1,113 @@
+"""The min_cond excitation design (ident/min_cond_design.py) and the planned campaign's cond(Θ̂₁ᵀΘ̂₁)
+(ident/planned_regressor.py): docs/identification.md, "Optimised excitation"."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from qomni.datasheet import DataSheet
+from qomni.ident import filtering
+from qomni.ident import min_cond_design as design
+from qomni.ident.campaign import IDENTIFICATION_STEPS, CampaignSettings, plan
+from qomni.ident.planned_regressor import planned_condition
+from qomni.ident.regressor import VELOCITY_THRESHOLD
+
+HEAVY = "emulator/data/heavy_platform.toml"
+LIMITS = {"alpha_l": ("alpha_max", "alpha_dot_max", "alpha_ddot_max"),
+          "alpha_r": ("alpha_max", "alpha_dot_max", "alpha_ddot_max"),
+          "x_ch": ("x_max", "x_dot_max", "x_ddot_max"),
+          "gamma_ch": ("gamma_max", "gamma_dot_max", "gamma_ddot_max")}
+
+
+def test_the_two_level_profile_covers_no_way_and_leaves_rest_and_reversals_gently():
+    dt, near, gentle = 1e-4, 0.2, 2.4
+    t = np.arange(0.0, 6.0, dt)
+    v = design.two_level_velocity(t, 6.0, 0.25, 2.5, 8.0, near=near, gentle=gentle)
+    assert abs(v.sum() * dt) < 1e-3                                  # rest to rest: zero displacement
+    assert v.max() == pytest.approx(0.25) and v.min() == pytest.approx(-2.5)
+    slow = np.isclose(v, 0.25)
+    assert 0.75 < slow.mean() < 0.9                                  # most of the period on the slow level
+    # from every rest or sign change, |q̇| needs near/gentle s to reach ``near``
+    still = np.nonzero((np.abs(v) < 1e-9) | (np.sign(v) != np.sign(np.roll(v, 1))))[0]
+    fast_enough = np.nonzero(np.abs(v) >= near)[0]
+    gap = np.min(np.abs(fast_enough[:, None] - still[None, :]), axis=1) * dt
+    assert gap.min() >= near / gentle - 2 * dt
+
+
+def test_a_period_too_short_for_the_ramps_is_refused():
+    with pytest.raises(ValueError, match="base period"):
+        design.two_level_velocity(np.zeros(3), 0.5, 0.25, 2.5, 8.0, near=0.2, gentle=2.4)
+
+
+@pytest.mark.parametrize("vehicle", [None, HEAVY])
+def test_the_default_campaign_is_planned_with_cond_below_five_and_a_third_of_the_richness_design(vehicle):
+    sheet = DataSheet.load(vehicle)
+    optimised = planned_condition(sheet)
+    richness = planned_condition(sheet, CampaignSettings(excitation="richness"))
+    assert optimised <= 5.0 and optimised < richness / 3
+
+
+def test_each_optimised_step_stays_in_its_limits_rests_at_both_ends_and_keeps_no_row_near_a_reversal():
+    settings = CampaignSettings()
+    reach = design.REVERSAL_REACH / filtering.OMEGA_G
+    for step in plan(DataSheet.load(), settings):
+        if step.name not in IDENTIFICATION_STEPS:
+            continue
+        ((coordinate, trajectory),) = step.trajectories.items()
+        q_max, qd_max, qdd_max = (getattr(settings, name) for name in LIMITS[coordinate])
+        t = np.arange(0.0, trajectory.duration, 1e-3)
+        q, qd, qdd = trajectory.evaluate(t)
+        assert np.abs(q).max() <= q_max and np.abs(qd).max() <= qd_max and np.abs(qdd).max() <= qdd_max
+        ends = trajectory.evaluate(np.array([0.0, trajectory.duration]))
+        assert np.allclose([ends[0], ends[1], ends[2]], 0.0, atol=1e-9)
+        threshold = VELOCITY_THRESHOLD[coordinate]
+        cond, kept = design.pair_condition(qd, qdd, threshold)
+        assert cond < 4.6 and kept > 0.65, step.name
+        near = design.near_reversal(qd, threshold, int(reach / 1e-3)) & (np.abs(qd) >= threshold)
+        assert near.mean() < 0.02, step.name
+
+
+def test_the_shipped_designs_are_what_the_design_gives_afresh_and_the_design_is_deterministic():
+    shipped = json.loads(design.SHIPPED_DESIGNS.read_text())
+    fresh = design.default_designs()
+    assert fresh.keys() == shipped.keys() and len(fresh) == 3    # steering (both sides), straight, rotation
+    for key, entry in fresh.items():
+        inputs = json.loads(key)
+        old, new = shipped[key], entry
+        assert new["periods"] == old["periods"] and new["omega_f"] == pytest.approx(old["omega_f"])
+        crits = []
+        for d in (old, new):
+            tr = design.FourierTrajectory.from_start(d["omega_f"], np.array(d["a"]), np.array(d["b"]),
+                                                    periods=d["periods"])
+            _, qd, qdd = tr.evaluate(np.arange(0.0, tr.duration, 2e-3))
+            crits.append(design.pair_condition(qd, qdd, inputs["threshold"])[0])
+        assert crits[1] == pytest.approx(crits[0], rel=0.03)
+    args = dict(duration=12.0, q_min=-0.6, q_max=0.6, qd_max=2.5, qdd_max=10.0, q_start=0.0, threshold=0.2,
+                n_harmonics=8, slow_factor=1.25, lost_weight=1.0, evaluations=800, margin=0.995)
+    assert design._design.__wrapped__(**args) == design._design.__wrapped__(**args)
+
+
+def test_a_malformed_shipped_design_is_refused_naming_the_file_and_the_design(tmp_path, monkeypatch):
+    bad = tmp_path / "designs.json"
+    bad.write_text(json.dumps({"steer": {"a": [0.0, math.nan, 0.0, 0.0], "b": [0.0] * 4, "periods": 2,
+                                         "omega_f": 1.0}}))
+    monkeypatch.setattr(design, "SHIPPED_DESIGNS", bad)
+    design._shipped.cache_clear()
+    try:
+        with pytest.raises(ValueError, match=r"designs\.json: design steer"):
+            design._shipped()
+        bad.write_text("{not json")
+        design._shipped.cache_clear()
+        with pytest.raises(ValueError, match=r"designs\.json: not readable JSON"):
+            design._shipped()
+    finally:
+        design._shipped.cache_clear()
+
+
+def test_an_unknown_excitation_criterion_is_refused_by_name():
+    with pytest.raises(ValueError, match="settings.excitation"):
+        CampaignSettings(excitation="d_optimal")
+    assert CampaignSettings.quick().excitation == "richness" and CampaignSettings().excitation == "min_cond"
