@@ -2,14 +2,15 @@
 
     python benchmarks/excitation.py [--seeds 0 1 2 3 4] [--workers 2] [--work DIR]
 
-For the prototype and the heavy platform (emulator/data/heavy_platform.toml) and each noise seed, the full
-campaign (``qomni campaign``, single-axis B_w included) runs once with the ``richness`` design and once
-with the ``min_cond`` design (docs/identification.md, "Optimised excitation"), then ``qomni compare``
-checks the parameters against the emulator's truth. Printed per vehicle and design: cond(Θ̂₁ᵀΘ̂₁) planned
-(:func:`qomni.ident.planned_regressor.planned_condition`) and measured, each parameter's relative error
-(mean |e| over the seeds and the largest), the largest error of each run (mean over the seeds), the
-occupied rectangle, the peak |motor torque| of each identification step and the share of its cycles at the
-drives' torque limit; then min_cond / richness ratios. Every campaign takes ≈ 40 s of one core.
+For the prototype and the heavy platform (emulator/data/heavy_platform.toml) and each noise seed, the
+full campaign (``qomni campaign``, single-axis B_w included) runs once with the ``richness`` design and
+once with the ``min_cond`` design (docs/identification.md, "Optimised excitation"), then
+``qomni compare`` checks the parameters against the emulator's truth. Printed per vehicle and design:
+cond(Θ̂₁ᵀΘ̂₁) planned (:func:`qomni.ident.planned_regressor.planned_condition`) and measured, each
+parameter's relative error (mean |e| over the seeds and the largest), the largest error of each run (mean
+over the seeds), the occupied rectangle, the peak |motor torque| of each identification step and the
+share of its cycles at the drives' torque limit; then min_cond / richness ratios. Every campaign takes
+≈ 40 s of one core.
 """
 from __future__ import annotations
 
@@ -82,7 +83,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--work", type=Path, default=None, help="keep the runs here (default: a temporary folder)")
+    parser.add_argument("--work", type=Path, default=None,
+                        help="keep the runs here (default: a temporary folder)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
@@ -104,13 +106,14 @@ def main(argv=None) -> int:
             line("cond planned", planned["richness"], planned["min_cond"])
             line("cond measured (median)", s["richness"]["cond"], s["min_cond"]["cond"])
             for name in s["richness"]["mean_abs"]:
-                print(f"{'|e| % ' + name + ' mean/max':24s}"
-                      + "".join(f"{s[c]['mean_abs'][name]:15.2f} / {s[c]['max_abs'][name]:4.2f}" for c in CRITERIA))
+                cells = (f"{s[c]['mean_abs'][name]:15.2f} / {s[c]['max_abs'][name]:4.2f}" for c in CRITERIA)
+                print(f"{'|e| % ' + name + ' mean/max':24s}" + "".join(cells))
             line("largest |e| % per run", s["richness"]["run_max"], s["min_cond"]["run_max"])
             line("rectangle length m", s["richness"]["rectangle"][0], s["min_cond"]["rectangle"][0])
             line("rectangle width m", s["richness"]["rectangle"][1], s["min_cond"]["rectangle"][1])
             for step in IDENTIFICATION_STEPS:
-                line(f"peak |u| N m {step}", s["richness"]["torque"][step][0], s["min_cond"]["torque"][step][0])
+                line(f"peak |u| N m {step}", s["richness"]["torque"][step][0],
+                     s["min_cond"]["torque"][step][0])
                 print(f"{'  cycles at the limit':24s}" + "".join(
                     f"{100 * s[c]['torque'][step][1]:21.1f}%" for c in CRITERIA))
     return 0

@@ -122,11 +122,13 @@ class CampaignSettings:
 
         Raises: ValueError naming the key: not a number (a string, a boolean), not finite, an integer
         setting with a fraction, a duration, limit or period ≤ 0 (the arcs' duration and the rest and
-        alignment times may be 0), fewer than one lane change or harmonic."""
+        alignment times may be 0), fewer than one lane change or harmonic, an excitation criterion not in
+        ``excitation.CRITERIA``."""
         may_be_zero = {"arc_duration", "align_duration", "rest_duration", "seed"}
         at_least_one = {"lane_changes", "n_harmonics", "min_cond_harmonics"}
         if self.excitation not in excitation.CRITERIA:
-            raise ValueError(f"settings.excitation must be one of {excitation.CRITERIA}, got {self.excitation!r}")
+            raise ValueError(f"settings.excitation must be one of {excitation.CRITERIA}, "
+                             f"got {self.excitation!r}")
         for f in fields(self):
             if f.name == "excitation":
                 continue
