@@ -10,6 +10,7 @@
                                                        # against local processes, same tasks, same run
     python benchmarks/blind_suite.py --range-ends      # a quick campaign at both ends of every effect's
                                                        # realistic range: completed, peak torque / limit
+    python benchmarks/blind_suite.py --range-ends --campaigns full --effects E ...   # full ones
     python benchmarks/blind_suite.py --withhold --work W   # each recorded single-effect case of W diagnosed
                                                        # against its twin without its effect's hypothesis
 
@@ -61,13 +62,14 @@ def dask_vs_local(todo, work: Path, quick: bool, workers, runner, console) -> in
     return 1 if errors else 0
 
 
-def range_ends(work: Path, entries, console) -> int:
-    """A quick campaign at each end of every effect's realistic range (qomni.suite.range_ends), in
-    turn; prints the table, writes ``work/range_ends.json`` after every row and returns 1 if any did not
-    complete inside its limits."""
+def range_ends(work: Path, entries, console, quick: bool = True) -> int:
+    """A campaign (quick, or full with ``quick`` false) at each end of every effect's realistic range
+    (qomni.suite.range_ends), in turn; prints the table, writes ``work/range_ends.json`` after every row and
+    returns 1 if any did not complete inside its limits."""
     from qomni.suite.range_ends import campaign_margins, range_end_cases
 
-    table = Table(title="Campaign at the ends of each effect's realistic range (quick campaigns)")
+    kind = "quick" if quick else "full"
+    table = Table(title=f"Campaign at the ends of each effect's realistic range ({kind} campaigns)")
     for col in ("Effect", "Table", "Completed", "Peak torque / limit", "At clip", "Straight |x| / x_max",
                 "Probe dead time", "Steering bw"):
         table.add_column(col, justify="left" if col in ("Effect", "Table") else "right")
@@ -82,7 +84,7 @@ def range_ends(work: Path, entries, console) -> int:
             import shutil
 
             shutil.rmtree(out)
-        row = campaign_margins(effects, out, seed=1 + i)
+        row = campaign_margins(effects, out, seed=1 + i, quick=quick)
         failed += not row.completed
         rows.append(dict(asdict(row), entry=entry, completed=row.completed))
         write_json(work / "range_ends.json", {"rows": rows})
@@ -153,7 +155,8 @@ def main(argv=None) -> int:
                     help="diagnose against each case's own twin (default) or an ideal emulator's model; each "
                     "has its own results file in --work, so both can score the same recordings")
     ap.add_argument("--range-ends", action="store_true",
-                    help="only the campaign at both ends of every effect's realistic range (quick campaigns)")
+                    help="only the campaign at both ends of every effect's realistic range (quick campaigns, "
+                    "or full ones with --campaigns full)")
     ap.add_argument("--work", type=Path, default=Path("runs/blind_suite"), help="work directory")
     ap.add_argument("--workers", type=int, default=None, help="local worker processes (default: cores)")
     ap.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
@@ -171,7 +174,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     console = Console() if sys.stdout.isatty() else Console(width=200)
     if args.range_ends:
-        return range_ends(args.work / "range_ends", args.effects, console)
+        return range_ends(args.work / ("range_ends" if args.campaigns != "full" else "range_ends_full"),
+                          args.effects, console, quick=args.campaigns != "full")
     if args.withhold:
         return withheld(args.work, args.workers, console)
     results_path = args.work / RESULTS[args.reference]
