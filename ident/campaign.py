@@ -258,6 +258,9 @@ class Campaign:
         self.source = source
         self.on_progress = on_progress
         self.steps = plan(sheet, self.settings)
+        from .planned_regressor import steps_condition   # imports this module's names: here, not on top
+        #: cond(Θ̂₁ᵀΘ̂₁) along the planned trajectories, before the vehicle moves (docs/identification.md)
+        self.planned_condition = steps_condition(self.steps, sheet)
         self.segments = self._segments()
         # built now: the first one compiles the model (≈ 0.3 s), far longer than a SYNC timeout
         self.controllers = [StepController(seg, sheet, self.controller_settings)
@@ -475,6 +478,7 @@ class Campaign:
             "settings": asdict(self.settings),
             "controller": asdict(self.controller_settings),
             "occupied_rectangle": occupied_rectangle(self.steps, sheet),
+            "planned_condition_number": self.planned_condition if np.isfinite(self.planned_condition) else None,
             "identification_steps": list(IDENTIFICATION_STEPS),
             "validation_step": VALIDATION_STEP,
             "arc_steps": [step.name for step in self.steps if step.name in ARC_STEPS],

@@ -43,14 +43,22 @@ def step_rows(step: ExcitationStep, sheet: DataSheet, cycle_time: float | None =
     return theta[keep, j][:, cols]
 
 
+def steps_condition(steps: list[ExcitationStep], sheet: DataSheet) -> float:
+    """cond(Θ̂₁,wᵀΘ̂₁,w) of the identification steps among planned ``steps``, Θ̂₁,w column-normalised as in
+    (25); ``inf`` where a column has no row."""
+    theta = np.vstack([step_rows(s, sheet) for s in steps if s.name in IDENTIFICATION_STEPS])
+    norms = np.linalg.norm(theta, axis=0)
+    if not np.all(norms > 0):
+        return float("inf")
+    sv = np.linalg.svd(theta / norms, compute_uv=False)
+    return float((sv[0] / sv[-1]) ** 2) if sv[-1] > 0 else float("inf")
+
+
 def planned_condition(sheet: DataSheet, settings: CampaignSettings | None = None) -> float:
-    """cond(Θ̂₁,wᵀΘ̂₁,w) of the planned campaign, Θ̂₁,w column-normalised as in (25).
+    """cond(Θ̂₁,wᵀΘ̂₁,w) of the campaign planned with ``settings`` (default: the full campaign's).
 
     Raises: ValueError where the plan cannot be made (:func:`plan`)."""
-    steps = [s for s in plan(sheet, settings or CampaignSettings()) if s.name in IDENTIFICATION_STEPS]
-    theta = np.vstack([step_rows(s, sheet) for s in steps])
-    sv = np.linalg.svd(theta / np.linalg.norm(theta, axis=0), compute_uv=False)
-    return float((sv[0] / sv[-1]) ** 2)
+    return steps_condition(plan(sheet, settings or CampaignSettings()), sheet)
 
 
-__all__ = ["planned_condition", "step_rows"]
+__all__ = ["planned_condition", "step_rows", "steps_condition"]

@@ -111,3 +111,12 @@ def test_an_unknown_excitation_criterion_is_refused_by_name():
     with pytest.raises(ValueError, match="settings.excitation"):
         CampaignSettings(excitation="d_optimal")
     assert CampaignSettings.quick().excitation == "richness" and CampaignSettings().excitation == "min_cond"
+
+
+def test_a_campaign_states_its_planned_cond_before_the_vehicle_moves(tmp_path):
+    from qomni.ident.campaign import Campaign
+
+    sheet = DataSheet.load()
+    campaign = Campaign(sheet, tmp_path / "run")
+    assert campaign.planned_condition == pytest.approx(planned_condition(sheet)) and campaign.planned_condition <= 5
+    assert campaign._metadata()["planned_condition_number"] == campaign.planned_condition

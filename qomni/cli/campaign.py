@@ -100,6 +100,8 @@ def campaign(
         run = Campaign(sheet, out, settings, controller, source=source)
     except ValueError as exc:
         fail(f"cannot plan the campaign within the vehicle's limits: {exc}")
+    console.print(f"planned cond(Θ̂₁ᵀΘ̂₁) = {run.planned_condition:.2f} ({settings.excitation} design)",
+                  markup=False)
     try:
         with vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_BLF, effect_set,
                            faults=fault_plan) as link:
