@@ -149,7 +149,8 @@ class CampaignSettings:
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":
         """A short campaign (≈ 46 s emulated) for tests and smoke runs; its 5 s steering steps at 1.5 rad/s
-        leave the min_cond design little room (a pair cond of 6.8 planned), so it keeps the richness design."""
+        leave the min_cond design little room (a pair cond of 6.8 planned), so it keeps the richness
+        design."""
         short = dict(excitation="richness", steer_duration=5.0, straight_duration=6.0, rotation_duration=6.0,
                      lane_change_duration=8.0, align_duration=1.5, rest_duration=0.3,
                      alpha_dot_max=1.5, alpha_ddot_max=6.0, lane_distance=3.0, lane_width=0.1,
@@ -188,11 +189,13 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),
         excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
                                        x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
-                                       seed=s.seed + 3, **designed("x_ch", s.straight_duration, s.chassis_period)),
+                                       seed=s.seed + 3,
+                                       **designed("x_ch", s.straight_duration, s.chassis_period)),
         excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
                                        gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
                                        gamma_ddot_max=s.gamma_ddot_max,
-                                       seed=s.seed + 4, **designed("gamma_ch", s.rotation_duration, s.chassis_period)),
+                                       seed=s.seed + 4,
+                                       **designed("gamma_ch", s.rotation_duration, s.chassis_period)),
         excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
                                lane_width=s.lane_width, changes=s.lane_changes,
                                alpha_v_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
@@ -478,7 +481,8 @@ class Campaign:
             "settings": asdict(self.settings),
             "controller": asdict(self.controller_settings),
             "occupied_rectangle": occupied_rectangle(self.steps, sheet),
-            "planned_condition_number": self.planned_condition if np.isfinite(self.planned_condition) else None,
+            "planned_condition_number": (self.planned_condition if np.isfinite(self.planned_condition)
+                                         else None),
             "identification_steps": list(IDENTIFICATION_STEPS),
             "validation_step": VALIDATION_STEP,
             "arc_steps": [step.name for step in self.steps if step.name in ARC_STEPS],

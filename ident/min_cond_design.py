@@ -1,9 +1,9 @@
 """Rest-to-rest Fourier excitation that minimises one viscous/Coulomb pair's condition number.
 
 Why this criterion. The smallest singular values of the campaign's column-normalised stack Θ̂₁,w belong to
-the three viscous/Coulomb pairs (d_vl, d_cl), (d_vr, d_cr), (d_vw, d_cw) (docs/identification.md, "What
-bounds cond"): over the rows the estimator keeps (|q̇| ≥ the stiction threshold) the two columns of a pair
-are q̇ and ≈ sign q̇, whose cosine is ρ = mean|q̇| / rms(q̇), and the pair alone bounds
+the three viscous/Coulomb pairs (d_vl, d_cl), (d_vr, d_cr), (d_vw, d_cw) (docs/identification.md,
+"Optimised excitation"): over the rows the estimator keeps (|q̇| ≥ the stiction threshold) the two columns
+of a pair are q̇ and ≈ sign q̇, whose cosine is ρ = mean|q̇| / rms(q̇), and the pair alone bounds
 cond(Θ̂₁ᵀΘ̂₁) ≥ (1 + ρ)/(1 − ρ). A sinusoidal velocity has ρ = 0.90 (≥ 19). ρ is smallest when |q̇| spends
 most rows just above the threshold and few at the velocity limit: with two levels q apart,
 ρ ≥ 2√q/(1 + q), reached with the slow level held q/(1 + q) of the time — exactly the share that makes the
@@ -13,15 +13,19 @@ back" velocity profile and minimises the pair's own criterion from there; a D-op
 
 The design (:func:`design_min_cond_trajectory`):
 
-1. one base period T_b of the step (an integer number of them fill the step) holding a pause at rest (the
-   rest conditions), a slow leg at ``slow_factor`` × the threshold, a reversal to the velocity limit and
-   back, the slow leg again, all ramps at 80 % of the acceleration limit;
+1. one base period of the step (:func:`base_period`: an integer number of them fill the step) holding a
+   pause at rest (the rest conditions), a slow leg at ``slow_factor`` × the threshold, a reversal to the
+   velocity limit, the fast leg, a reversal back, the slow leg again (:func:`two_level_velocity`); ramps
+   at 80 % of the acceleration limit, but gentle below the threshold, so that |q̇| reaches it no sooner
+   than :data:`REVERSAL_REACH`/ω_g after a reversal or a start from rest;
 2. its least-squares projection onto the rest-constrained Fourier basis of ``n_harmonics`` harmonics;
 3. Powell (scipy.optimize, deterministic) on the coefficients, minimising
-   log cond(G) + ``lost_weight`` · (1 − kept), G the Gram matrix of the column-normalised
-   [q̈, q̇, sign q̇] over the samples with |q̇| ≥ :data:`KEEP_FACTOR` · threshold after scaling the trajectory
-   to the limits, ``kept`` their share. The Gram matrix is summed by ``numpy.einsum`` (no threaded BLAS),
-   so the result does not depend on the number of BLAS threads;
+   log cond(G) + ``lost_weight`` · (1 − kept) + :data:`REVERSAL_WEIGHT` · near, G the Gram matrix of the
+   column-normalised [q̈, q̇, sign q̇] over the samples with |q̇| ≥ :data:`KEEP_FACTOR` · threshold after
+   scaling the trajectory to the limits, ``kept`` their share, ``near`` the share of samples above the
+   threshold within REVERSAL_REACH/ω_g of a reversal or a rest (:func:`near_reversal`). The Gram matrix
+   is summed by ``numpy.einsum`` (no threaded BLAS), so the result does not depend on the number of BLAS
+   threads;
 4. scaled as far as the position, velocity and acceleration limits allow (× ``margin``).
 
 The optimisation takes seconds per step; designs are memoised in-process and the default campaign's are
@@ -42,9 +46,11 @@ from scipy import linalg, optimize
 from . import filtering
 from .fourier import FourierTrajectory, _basis
 
-__all__ = ["DESIGN_VERSION", "pair_condition", "two_level_velocity", "design_min_cond_trajectory"]
+__all__ = ["DESIGN_VERSION", "base_period", "design_min_cond_trajectory", "near_reversal", "pair_condition",
+           "two_level_velocity"]
 
-#: Bumped whenever the design procedure changes, so that shipped designs of an older procedure are not used.
+#: Bumped whenever the design procedure or its constants change, so that shipped designs of an older
+#: procedure are not used.
 DESIGN_VERSION = 1
 SHIPPED_DESIGNS = Path(__file__).with_name("data") / "min_cond_designs.json"
 #: Samples per second of the design grid (one base period).

@@ -30,7 +30,8 @@ from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, Campaign, CampaignSettings
 from qomni.ident.identify import identify_run
-from qomni.ident.regressor_rows import VELOCITY_THRESHOLD, correlation_lag, identification_blocks, timing_blocks
+from qomni.ident.regressor_rows import (VELOCITY_THRESHOLD, correlation_lag, identification_blocks,
+                                       timing_blocks)
 from qomni.ident.rundir import load_run
 from qomni.ident.torque_timing import estimate_torque_lag, shift_torque
 

@@ -1,5 +1,5 @@
-"""The min_cond excitation design (ident/min_cond_design.py) and the planned campaign's cond(Θ̂₁ᵀΘ̂₁)
-(ident/planned_regressor.py): docs/identification.md, "Optimised excitation"."""
+"""The min_cond excitation design (ident/min_cond_design.py) and the planned campaign's
+cond(Θ̂₁ᵀΘ̂₁) (ident/planned_regressor.py): docs/identification.md, "Optimised excitation"."""
 from __future__ import annotations
 
 import json
@@ -118,5 +118,6 @@ def test_a_campaign_states_its_planned_cond_before_the_vehicle_moves(tmp_path):
 
     sheet = DataSheet.load()
     campaign = Campaign(sheet, tmp_path / "run")
-    assert campaign.planned_condition == pytest.approx(planned_condition(sheet)) and campaign.planned_condition <= 5
+    assert campaign.planned_condition == pytest.approx(planned_condition(sheet))
+    assert campaign.planned_condition <= 5
     assert campaign._metadata()["planned_condition_number"] == campaign.planned_condition
