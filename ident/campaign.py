@@ -26,6 +26,7 @@ from .probe import DeadTimeProbe
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
 from .json_values import json_number
+from .min_cond_design import trajectory_pair_condition
 from .recording import SignalWriter
 from .regressor import VELOCITY_THRESHOLD
 from .rundir import METADATA, RUN_FORMAT, SIGNALS, write_json
@@ -173,29 +174,37 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
                          f"({g.steering_limit:.4g} rad) by more than {STOP_MARGIN} rad")
     common = dict(n_harmonics=s.n_harmonics)
 
-    def designed(coordinate: str, duration: float, period: float) -> dict:
+    def designed(coordinate: str, duration: float, period: float, cond_cap: float | None = None) -> dict:
         """The design keywords of one excited coordinate."""
         if s.excitation == "min_cond":
+            cap = {} if cond_cap is None else {"cond_cap": cond_cap}
             return dict(criterion="min_cond", threshold=VELOCITY_THRESHOLD[coordinate],
-                        n_harmonics=s.min_cond_harmonics)
+                        n_harmonics=s.min_cond_harmonics, **cap)
         # A long step is several repetitions of a short base period: a single slow period would keep
         # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
         return dict(periods=_periods(duration, period), **common)
 
     steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
                  alpha_ddot_max=s.alpha_ddot_max, **designed("alpha_l", s.steer_duration, s.steer_period))
+    steer_left = excitation.steer_left_excitation(seed=s.seed + 1, **steer)
+    # The steering pairs bound the stack's cond (docs/identification.md, "Optimised excitation"); the
+    # chassis steps may spend what their pair has below it on acceleration.
+    cap = None
+    if s.excitation == "min_cond":
+        cap = round(trajectory_pair_condition(steer_left.trajectories["alpha_l"], VELOCITY_THRESHOLD["alpha_l"],
+                                              sheet.drive.cycle_time), 2)
     steps = [
-        excitation.steer_left_excitation(seed=s.seed + 1, **steer),
+        steer_left,
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),
         excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
                                        x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
                                        seed=s.seed + 3,
-                                       **designed("x_ch", s.straight_duration, s.chassis_period)),
+                                       **designed("x_ch", s.straight_duration, s.chassis_period, cap)),
         excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
                                        gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
                                        gamma_ddot_max=s.gamma_ddot_max,
                                        seed=s.seed + 4,
-                                       **designed("gamma_ch", s.rotation_duration, s.chassis_period)),
+                                       **designed("gamma_ch", s.rotation_duration, s.chassis_period, cap)),
         excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
                                lane_width=s.lane_width, changes=s.lane_changes,
                                alpha_v_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,

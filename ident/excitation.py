@@ -117,16 +117,20 @@ def _design(criterion: str, threshold: float | None, *, duration: float, q_max: 
             qdd_max: float, n_harmonics: int, seed: int, **kw) -> Trajectory:
     """One excited coordinate over ±q_max, by ``criterion`` (:data:`CRITERIA`).
 
+    ``min_cond`` takes ``cond_cap`` (:func:`design_min_cond_trajectory`) among ``kw``.
+
     Raises: ValueError: an unknown criterion, ``min_cond`` without a threshold or with richness-only
     keywords, or limits the design cannot meet."""
     if criterion == "richness":
         return design_fourier_trajectory(duration=duration, q_min=-q_max, q_max=q_max, qd_max=qd_max,
                                          qdd_max=qdd_max, n_harmonics=n_harmonics, seed=seed, **kw)
     if criterion == "min_cond":
+        cap = kw.pop("cond_cap", None)
         if threshold is None or kw:
             raise ValueError(f"the min_cond design needs the threshold and takes no {sorted(kw)}")
         return design_min_cond_trajectory(duration=duration, q_min=-q_max, q_max=q_max, qd_max=qd_max,
-                                          qdd_max=qdd_max, threshold=threshold, n_harmonics=n_harmonics)
+                                          qdd_max=qdd_max, threshold=threshold, n_harmonics=n_harmonics,
+                                          cond_cap=cap)
     raise ValueError(f"unknown excitation criterion {criterion!r}; one of {CRITERIA}")
 
 

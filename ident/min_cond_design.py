@@ -47,7 +47,7 @@ from . import filtering
 from .fourier import FourierTrajectory, _basis
 
 __all__ = ["DESIGN_VERSION", "base_period", "design_min_cond_trajectory", "near_reversal", "pair_condition",
-           "two_level_velocity"]
+           "trajectory_pair_condition", "two_level_velocity"]
 
 #: Bumped whenever the design procedure or its constants change, so that shipped designs of an older
 #: procedure are not used.
@@ -64,6 +64,8 @@ REVERSAL_REACH = 3.0
 #: row planned just above the threshold may fall below it by the tracking error.
 KEEP_FACTOR = 1.1
 REVERSAL_WEIGHT = 10.0
+#: With a cond cap, how many more base periods than :func:`base_period`'s the design tries.
+MAX_EXTRA_PERIODS = 4
 
 
 def pair_condition(qd: np.ndarray, qdd: np.ndarray, threshold: float) -> tuple[float, float]:
@@ -154,6 +156,12 @@ def two_level_velocity(t: np.ndarray, period: float, slow: float, fast: float, a
     return np.interp(np.mod(t, period), edges, values)
 
 
+def trajectory_pair_condition(trajectory: FourierTrajectory, threshold: float, cycle_time: float = 2e-3) -> float:
+    """The pair cond (:func:`pair_condition`) of a designed trajectory sampled every ``cycle_time`` s."""
+    _, qd, qdd = trajectory.evaluate(np.arange(0.0, trajectory.duration, cycle_time))
+    return pair_condition(qd, qdd, threshold)[0]
+
+
 def base_period(duration: float, q_range: float, slow: float, fast: float, accel: float) -> int:
     """Number of base periods in the step: as many as leave each one's slow legs room to sweep 90 % of
     the position range ``q_range`` (at least one)."""
@@ -171,12 +179,12 @@ def _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max):
     return s
 
 
-@functools.lru_cache(maxsize=64)
-def _design(duration: float, q_min: float, q_max: float, qd_max: float, qdd_max: float, q_start: float,
-            threshold: float, n_harmonics: int, slow_factor: float, lost_weight: float, evaluations: int,
-            margin: float) -> tuple[tuple[float, ...], tuple[float, ...], int, float]:
+def _design_periods(periods: int, duration: float, q_min: float, q_max: float, qd_max: float,
+                    qdd_max: float, q_start: float, threshold: float, n_harmonics: int, slow_factor: float,
+                    lost_weight: float, evaluations: int, margin: float) -> tuple[np.ndarray, float, float]:
+    """The design over ``periods`` base periods: (coefficients c = [a; b], its pair cond at the threshold,
+    its RMS acceleration). Raises ValueError where a base period cannot hold the two-level profile."""
     slow = slow_factor * threshold
-    periods = base_period(duration, q_max - q_min, slow, qd_max, qdd_max)
     period = duration / periods
     omega = 2 * math.pi / period
     t = np.arange(int(round(period * GRID_RATE))) / GRID_RATE
@@ -187,7 +195,6 @@ def _design(duration: float, q_min: float, q_max: float, qd_max: float, qdd_max:
                                gentle=0.9 * threshold / reach_time)
     z0 = np.linalg.lstsq(v, start, rcond=None)[0]
     q_low, q_high = q_start - q_min, q_max - q_start
-
     reach = int(math.ceil(reach_time * GRID_RATE))
 
     def objective(z):
@@ -202,8 +209,32 @@ def _design(duration: float, q_min: float, q_max: float, qd_max: float, qdd_max:
     res = optimize.minimize(objective, z0, method="Powell",
                             options={"maxfev": evaluations, "xtol": 1e-4, "ftol": 1e-7})
     z = res.x if res.fun <= objective(z0) else z0
-    c = null @ (z * margin * _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max))
-    return tuple(c[:n_harmonics].tolist()), tuple(c[n_harmonics:].tolist()), periods, omega
+    z = z * margin * _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max)
+    cond = pair_condition(v @ z, a @ z, threshold)[0]
+    return null @ z, cond, float(np.sqrt(np.mean((a @ z) ** 2)))
+
+
+@functools.lru_cache(maxsize=64)
+def _design(duration: float, q_min: float, q_max: float, qd_max: float, qdd_max: float, q_start: float,
+            threshold: float, n_harmonics: int, slow_factor: float, lost_weight: float, evaluations: int,
+            margin: float, cond_cap: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...], int, float]:
+    args = (duration, q_min, q_max, qd_max, qdd_max, q_start, threshold, n_harmonics, slow_factor,
+            lost_weight, evaluations, margin)
+    periods = base_period(duration, q_max - q_min, slow_factor * threshold, qd_max, qdd_max)
+    best = (periods, _design_periods(periods, *args))
+    if cond_cap > 0:
+        # the most acceleration (inertia information, torque rate for the lag) among the period counts
+        # whose pair cond stays within the cap
+        for more in range(periods + 1, periods + MAX_EXTRA_PERIODS + 1):
+            try:
+                candidate = _design_periods(more, *args)
+            except ValueError:
+                break
+            if candidate[1] <= cond_cap and candidate[2] > best[1][2]:
+                best = (more, candidate)
+    periods, (c, _, _) = best
+    return (tuple(c[:n_harmonics].tolist()), tuple(c[n_harmonics:].tolist()), periods,
+            2 * math.pi * periods / duration)
 
 
 def _key(**inputs) -> str:
@@ -242,7 +273,8 @@ def _shipped() -> dict:
 def design_min_cond_trajectory(*, duration: float, q_min: float, q_max: float, qd_max: float,
                                qdd_max: float, threshold: float, q_start: float = 0.0, n_harmonics: int = 16,
                                slow_factor: float = 1.25, lost_weight: float = 1.0, evaluations: int = 6000,
-                               margin: float = 0.995, use_shipped: bool = True) -> FourierTrajectory:
+                               margin: float = 0.995, cond_cap: float | None = None,
+                               use_shipped: bool = True) -> FourierTrajectory:
     """A rest-to-rest Fourier trajectory minimising the viscous/Coulomb pair's condition number (module
     docstring), within |q − q_start| limits, |q̇| ≤ qd_max, |q̈| ≤ qdd_max, over ``duration``.
 
@@ -254,6 +286,10 @@ def design_min_cond_trajectory(*, duration: float, q_min: float, q_max: float, q
             slow level at ``slow_factor`` × it, the margin for tracking error and filtering.
         n_harmonics: harmonics of the base period (≥ 4).
         slow_factor, lost_weight, evaluations, margin: design criterion and budget (module docstring).
+        cond_cap: where given, the step may hold more base periods than :func:`base_period`'s (up to
+            :data:`MAX_EXTRA_PERIODS` more): the design with the largest RMS acceleration whose pair cond
+            stays at or below the cap. A campaign caps the chassis steps at the steering steps' pair cond,
+            which bounds the stack's, so the chassis steps spend their slack on inertia information.
         use_shipped: take a shipped design where every input matches.
     Returns:
         FourierTrajectory starting and ending at rest at ``q_start``.
@@ -269,9 +305,13 @@ def design_min_cond_trajectory(*, duration: float, q_min: float, q_max: float, q
         raise ValueError(f"n_harmonics must be >= 4, got {n_harmonics}")
     if slow_factor * threshold >= qd_max:
         raise ValueError(f"the velocity limit {qd_max} leaves no room above the threshold {threshold}")
+    if cond_cap is not None and not (math.isfinite(cond_cap) and cond_cap > 1):
+        raise ValueError(f"cond_cap must be a finite number > 1, got {cond_cap}")
     inputs = dict(duration=duration, q_min=q_min, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max,
                   q_start=q_start, threshold=threshold, n_harmonics=n_harmonics, slow_factor=slow_factor,
                   lost_weight=lost_weight, evaluations=evaluations, margin=margin)
+    if cond_cap is not None:
+        inputs["cond_cap"] = cond_cap
     key = _key(**inputs)
     shipped = _shipped().get(key) if use_shipped and _recording is None else None
     if shipped is not None:
