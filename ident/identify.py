@@ -12,15 +12,15 @@ from pathlib import Path
 from qomni.datasheet import DataSheet
 
 from . import filtering
-from .campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STEP
+from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
 from .result import IdentificationResult
 from .estimation import estimate
 from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
-                             identification_blocks, timing_blocks, validation_blocks)
+                             identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
                      RunDirectoryError, b_w_source, file_sha256, load_identification, load_repaired_run,
-                     completed_steps, read_json, require_complete, write_json)
+                     read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .least_squares import IdentifiabilityError
@@ -71,14 +71,12 @@ def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     ts = sheet.drive.cycle_time
     lag = correlation_lag(ts)
     blocks_of = lambda s: identification_blocks(s, sheet)  # noqa: E731
-    arcs = tuple(s["name"] for s in completed_steps(meta, str(run_dir / METADATA)) if s["name"] in ARC_STEPS)
-    timing_of = lambda s: timing_blocks(s, sheet, arcs)  # noqa: E731
     if torque_lag == "auto":
-        timing = estimate_torque_lag(signals, timing_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+        timing = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
     else:
         value = check_lag(torque_lag)
         try:
-            found = estimate_torque_lag(signals, timing_of, B_w, ts, VELOCITY_THRESHOLD, lag)
+            found = estimate_torque_lag(signals, blocks_of, B_w, ts, VELOCITY_THRESHOLD, lag)
         except (TorqueTimingError, IdentifiabilityError):
             found = TorqueLag(math.nan, "estimated", ts)   # reported as null: not estimable here
         timing = TorqueLag(value, "configured", ts, estimate=None if math.isnan(found.value) else found.value,

@@ -28,10 +28,10 @@ The design (:func:`design_min_cond_trajectory`):
    threads;
 4. scaled as far as the position, velocity and acceleration limits allow (× ``margin``).
 
-The optimisation takes seconds per step; designs are memoised in-process and the default campaign's are
-shipped in ``data/min_cond_designs.json`` (key: every design input and :data:`DESIGN_VERSION`), so a
-campaign with the default settings never re-runs it. ``python -m qomni.ident.min_cond_design`` rewrites
-that file. All quantities SI (rad or m).
+The optimisation takes seconds per step; designs are memoised in-process and those of the full campaign
+with the min_cond criterion are shipped in ``data/min_cond_designs.json`` (key: every design input and
+:data:`DESIGN_VERSION`), so such a campaign with otherwise default settings never re-runs it.
+``python -m qomni.ident.min_cond_design`` rewrites that file. All quantities SI (rad or m).
 """
 from __future__ import annotations
 
@@ -328,21 +328,22 @@ _recording: dict | None = None
 
 
 def default_designs() -> dict:
-    """The designs of the default full campaign (``CampaignSettings()``), computed afresh: {key: entry}."""
+    """The designs of the full campaign with the min_cond criterion and otherwise default settings,
+    computed afresh: {key: entry}."""
     global _recording
     from qomni.datasheet import DataSheet
 
     from .campaign import CampaignSettings, plan
     _recording = {}
     try:
-        plan(DataSheet.load(), CampaignSettings())
+        plan(DataSheet.load(), CampaignSettings(excitation="min_cond"))
         return dict(sorted(_recording.items()))
     finally:
         _recording = None
 
 
 def main() -> None:
-    """Rewrite :data:`SHIPPED_DESIGNS` with the default campaign's designs (atomically)."""
+    """Rewrite :data:`SHIPPED_DESIGNS` with :func:`default_designs` (atomically)."""
     from qomni.ident import min_cond_design   # the module the campaign uses, not this __main__ copy
     from qomni.ident.rundir import write_json
 

@@ -150,22 +150,6 @@ def identification_blocks(signals: Signals, sheet: DataSheet) -> list[RegressorB
     return blocks
 
 
-def timing_blocks(signals: Signals, sheet: DataSheet, arcs: tuple[str, ...] = ()) -> list[RegressorBlock]:
-    """The rows the torque lag is estimated from (:mod:`.torque_timing`): the identification steps' and the
-    x_ch rows of the recorded ``arcs`` (names from :data:`.campaign.ARC_STEPS`). The lag is the drives', the
-    same in every step; the arcs' yaw accelerations (the richness design) carry the campaign's largest
-    torque rate, which the min_cond identification steps hold little of (docs/conventions.md, "Torque
-    timing").
-
-    Raises:
-        RunDirectoryError: a step is missing from the recording.
-    """
-    blocks = identification_blocks(signals, sheet)
-    for step in arcs:
-        blocks += step_blocks(generalized_signals(step_signals(signals, step), sheet), sheet, ("x_ch",))
-    return blocks
-
-
 def validation_blocks(signals: Signals, sheet: DataSheet) -> list[RegressorBlock]:
     """Rows of the lane change (mode 2, both coordinates α_v and x_ch)."""
     st = generalized_signals(step_signals(signals, VALIDATION_STEP), sheet)

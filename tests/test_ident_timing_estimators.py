@@ -28,10 +28,9 @@ from qomni.datasheet import DataSheet
 from qomni.embedded import embedded_vehicle
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
-from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, Campaign, CampaignSettings
+from qomni.ident.campaign import IDENTIFICATION_STEPS, Campaign, CampaignSettings
 from qomni.ident.identify import identify_run
-from qomni.ident.regressor_rows import (VELOCITY_THRESHOLD, correlation_lag, identification_blocks,
-                                       timing_blocks)
+from qomni.ident.regressor_rows import VELOCITY_THRESHOLD, correlation_lag, identification_blocks
 from qomni.ident.rundir import load_run
 from qomni.ident.torque_timing import estimate_torque_lag, shift_torque
 
@@ -60,14 +59,6 @@ def test_a_report_lag_is_estimated_within_0_2_ms(recorded, delta):
     late = _lag(shift_torque(signals, -delta), sheet, sheet.nominal.B_w)   # reports δ behind
     assert abs((late.value - base.value) - delta) < 2e-4
     assert 0 < late.std < 2e-4
-
-
-def test_the_lag_is_estimated_over_the_identification_steps_and_the_arcs_x_ch_rows(recorded):
-    signals, sheet, _ = load_run(recorded[0])
-    channels = lambda blocks: {str(np.atleast_1d(b.channel)[0]) for b in blocks}  # noqa: E731
-    fitted = channels(identification_blocks(signals, sheet))
-    assert channels(timing_blocks(signals, sheet)) == fitted
-    assert channels(timing_blocks(signals, sheet, ARC_STEPS)) == fitted | {f"{a}/x_ch" for a in ARC_STEPS}
 
 
 def test_drives_reporting_one_cycle_late_are_read_from_the_campaign(recorded, tmp_path):

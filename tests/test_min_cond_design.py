@@ -16,6 +16,7 @@ from qomni.ident.planned_regressor import planned_condition
 from qomni.ident.regressor import VELOCITY_THRESHOLD
 
 HEAVY = "emulator/data/heavy_platform.toml"
+MIN_COND = CampaignSettings(excitation="min_cond")
 LIMITS = {"alpha_l": ("alpha_max", "alpha_dot_max", "alpha_ddot_max"),
           "alpha_r": ("alpha_max", "alpha_dot_max", "alpha_ddot_max"),
           "x_ch": ("x_max", "x_dot_max", "x_ddot_max"),
@@ -43,15 +44,15 @@ def test_a_period_too_short_for_the_ramps_is_refused():
 
 
 @pytest.mark.parametrize("vehicle", [None, HEAVY])
-def test_the_default_campaign_is_planned_with_cond_below_five_and_a_third_of_the_richness_design(vehicle):
+def test_the_full_campaign_is_planned_with_cond_below_five_and_a_third_of_the_richness_design(vehicle):
     sheet = DataSheet.load(vehicle)
-    optimised = planned_condition(sheet)
-    richness = planned_condition(sheet, CampaignSettings(excitation="richness"))
+    optimised = planned_condition(sheet, MIN_COND)
+    richness = planned_condition(sheet, CampaignSettings())
     assert optimised <= 5.0 and optimised < richness / 3
 
 
 def test_each_optimised_step_stays_in_its_limits_rests_at_both_ends_and_keeps_no_row_near_a_reversal():
-    settings = CampaignSettings()
+    settings = MIN_COND
     reach = design.REVERSAL_REACH / filtering.OMEGA_G
     for step in plan(DataSheet.load(), settings):
         if step.name not in IDENTIFICATION_STEPS:
@@ -110,14 +111,14 @@ def test_a_malformed_shipped_design_is_refused_naming_the_file_and_the_design(tm
 def test_an_unknown_excitation_criterion_is_refused_by_name():
     with pytest.raises(ValueError, match="settings.excitation"):
         CampaignSettings(excitation="d_optimal")
-    assert CampaignSettings.quick().excitation == "richness" and CampaignSettings().excitation == "min_cond"
+    assert CampaignSettings.quick().excitation == "richness" and CampaignSettings().excitation == "richness"
 
 
 def test_a_campaign_states_its_planned_cond_before_the_vehicle_moves(tmp_path):
     from qomni.ident.campaign import Campaign
 
     sheet = DataSheet.load()
-    campaign = Campaign(sheet, tmp_path / "run")
-    assert campaign.planned_condition == pytest.approx(planned_condition(sheet))
+    campaign = Campaign(sheet, tmp_path / "run", MIN_COND)
+    assert campaign.planned_condition == pytest.approx(planned_condition(sheet, MIN_COND))
     assert campaign.planned_condition <= 5
     assert campaign._metadata()["planned_condition_number"] == campaign.planned_condition

@@ -39,9 +39,10 @@ def campaign(
     seed: int = typer.Option(0, min=0, help="Seed of the embedded emulator's noise."),
     quick: bool = typer.Option(False, help="Short campaign (≈ 46 s emulated) for smoke tests."),
     excitation: Optional[str] = typer.Option(
-        None, help="Design criterion of the identification steps: 'min_cond' (the viscous/Coulomb pairs' "
-                   "condition number; the full campaign's default) or 'richness' (the quick campaign's "
-                   "default); docs/identification.md."),
+        None, help="Design criterion of the identification steps: 'richness' (the default) or 'min_cond' "
+                   "(the viscous/Coulomb pairs' condition number: cond about 4.5 on a full campaign and "
+                   "better steering parameters, but less chassis acceleration for the gap diagnosis); "
+                   "docs/identification.md, Optimised excitation."),
     single_axis: Optional[bool] = typer.Option(
         None, "--single-axis/--no-single-axis",
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
