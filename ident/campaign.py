@@ -191,8 +191,8 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     # chassis steps may spend what their pair has below it on acceleration.
     cap = None
     if s.excitation == "min_cond":
-        cap = round(trajectory_pair_condition(steer_left.trajectories["alpha_l"], VELOCITY_THRESHOLD["alpha_l"],
-                                              sheet.drive.cycle_time), 2)
+        cap = round(trajectory_pair_condition(steer_left.trajectories["alpha_l"],
+                                              VELOCITY_THRESHOLD["alpha_l"], sheet.drive.cycle_time), 2)
     steps = [
         steer_left,
         excitation.steer_right_excitation(seed=s.seed + 2, **steer),

@@ -156,7 +156,8 @@ def two_level_velocity(t: np.ndarray, period: float, slow: float, fast: float, a
     return np.interp(np.mod(t, period), edges, values)
 
 
-def trajectory_pair_condition(trajectory: FourierTrajectory, threshold: float, cycle_time: float = 2e-3) -> float:
+def trajectory_pair_condition(trajectory: FourierTrajectory, threshold: float,
+                              cycle_time: float = 2e-3) -> float:
     """The pair cond (:func:`pair_condition`) of a designed trajectory sampled every ``cycle_time`` s."""
     _, qd, qdd = trajectory.evaluate(np.arange(0.0, trajectory.duration, cycle_time))
     return pair_condition(qd, qdd, threshold)[0]
