@@ -251,9 +251,15 @@ class StepController:
                                                self.sheet.drive.i_G))
 
     def _alpha_v(self, alpha: np.ndarray) -> float:
+        """The virtual steering angle (rad) the measured α (2,) imply in mode 2 (0 in the other modes). α
+        off the mode-2 configuration (a steering unit sticking or lagging, as the outer one entering an
+        arc at 1.25 rad inner angle) can imply one beyond the mode's range ±arctan(l/b): the chassis loop
+        then takes its column at the nearest admissible one, the range's end."""
         if self.k != 2:
             return 0.0
-        return float(kinematics.alpha_v_from_alpha(alpha[None], self.sheet.geometry)[0])
+        g = self.sheet.geometry
+        limit = kinematics.alpha_v_max(g)
+        return float(np.clip(kinematics.alpha_v_from_alpha(alpha[None], g)[0], -limit, limit))
 
     def _chassis_column(self, alpha: np.ndarray) -> np.ndarray:
         """The column of H_k belonging to the chassis coordinate, (9,)."""

@@ -71,3 +71,21 @@ def test_commands_on_and_off_the_grid_agree_for_the_same_state():
         u_on = on.command(j * ts, m)
         u_off = off.command(j * ts * (1 + 1e-15) if j else 0.0, m)
         np.testing.assert_allclose(u_on, u_off, rtol=1e-9, atol=1e-9)
+
+
+def test_steering_off_the_mode_2_configuration_takes_the_chassis_column_at_the_range_end(controllers):
+    """Entering an arc (inner unit at 1.25 rad, outer at 0.50) with the outer unit 0.2 rad ahead, as a
+    sticking, slow steering loop leaves it, the measured α imply a virtual angle beyond arctan(l/b); the
+    loop keeps commanding, with the column of the range's end."""
+    from qomni.ident import kinematics
+
+    ctrl = next(c for name, c in controllers.items() if name.startswith("arc"))
+    g = SHEET.geometry
+    limit = kinematics.alpha_v_max(g)
+    alpha = kinematics.f_icr(np.array([0.746]), g)[0] + np.array([0.0, 0.2])
+    assert kinematics.alpha_v_from_alpha(alpha[None], g)[0] > limit
+    h = ctrl._chassis_column(alpha)
+    at_end = kinematics.H(2, kinematics.f_icr(np.array([limit]), g), g, alpha_v=np.array([limit]))[0][:, 1]
+    np.testing.assert_allclose(h, at_end, rtol=1e-12, atol=1e-12)
+    inertia, _ = ctrl._chassis_terms(alpha)
+    assert np.isfinite(inertia) and inertia > 0
