@@ -209,6 +209,18 @@ def _basis(n_h: int, omega_f: float, t: np.ndarray) -> tuple[np.ndarray, np.ndar
     return p, v, a
 
 
+def _limit_scale(f: np.ndarray, qd: np.ndarray, qdd: np.ndarray, room_up: float, room_down: float,
+                 qd_max: float, qdd_max: float) -> float:
+    """Largest factor keeping f = q − q_start within [−room_down, room_up], |q̇| ≤ qd_max, |q̈| ≤ qdd_max;
+    f, qd, qdd (N,) samples of one unscaled trajectory."""
+    s = min(qd_max / np.max(np.abs(qd)), qdd_max / np.max(np.abs(qdd)))
+    if f.max() > 0:
+        s = min(s, room_up / f.max())
+    if f.min() < 0:
+        s = min(s, room_down / (-f.min()))
+    return float(s)
+
+
 def _richness_cond(qd: np.ndarray, qdd: np.ndarray) -> float:
     """Condition number of the column-normalised regressor [q̈, q̇, sign(q̇)], shape (N, 3)."""
     r = np.column_stack([qdd, qd, np.sign(qd)])
@@ -304,15 +316,6 @@ def design_fourier_trajectory(
     pc, vc, ac = _basis(n, omega_f, t_c)
     pc_n, vc_n, ac_n = pc @ ns, vc @ ns, ac @ ns
 
-    def scale_of(f: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
-        """Largest factor keeping f (= q − q_start), q̇, q̈ within the limits."""
-        s = min(qd_max / np.max(np.abs(qd)), qdd_max / np.max(np.abs(qdd)))
-        if f.max() > 0:
-            s = min(s, (q_max - q_start) / f.max())
-        if f.min() < 0:
-            s = min(s, (q_start - q_min) / (-f.min()))
-        return float(s)
-
     def objective(z: np.ndarray) -> float:
         qd, qdd = vc_n @ z, ac_n @ z
         if not np.any(qd) or not np.any(qdd):
@@ -321,7 +324,7 @@ def design_fourier_trajectory(
         cond = _richness_cond(qd[keep], qdd[keep])
         if not math.isfinite(cond):
             return 1e3
-        s = scale_of(pc_n @ z, qd, qdd)
+        s = _limit_scale(pc_n @ z, qd, qdd, q_max - q_start, q_start - q_min, qd_max, qdd_max)
         use = math.sqrt(np.mean(qd**2)) * math.sqrt(np.mean(qdd**2)) * s**2 / (qd_max * qdd_max)
         return (
             math.log(cond)
@@ -346,13 +349,7 @@ def design_fourier_trajectory(
     c = ns @ z
 
     pf, vf, af = _basis(n, omega_f, t_f)
-    f, qd, qdd = pf @ c, vf @ c, af @ c
-    scales = [qd_max / np.max(np.abs(qd)), qdd_max / np.max(np.abs(qdd))]
-    if f.max() > 0:
-        scales.append((q_max - q_start) / f.max())
-    if f.min() < 0:
-        scales.append((q_start - q_min) / (-f.min()))
-    c = c * (margin * min(scales))
+    c = c * (margin * _limit_scale(pf @ c, vf @ c, af @ c, q_max - q_start, q_start - q_min, qd_max, qdd_max))
     return FourierTrajectory.from_start(omega_f, c[:n], c[n:], q_start=q_start, periods=periods)
 
 

@@ -44,7 +44,7 @@ import numpy as np
 from scipy import linalg, optimize
 
 from . import filtering
-from .fourier import FourierTrajectory, _basis
+from .fourier import FourierTrajectory, _basis, _limit_scale
 
 __all__ = ["DESIGN_VERSION", "base_period", "design_min_cond_trajectory", "near_reversal", "pair_condition",
            "trajectory_pair_condition", "two_level_velocity"]
@@ -170,16 +170,6 @@ def base_period(duration: float, q_range: float, slow: float, fast: float, accel
     return max(1, int(duration // needed))
 
 
-def _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max):
-    q, qd, qdd = p @ z, v @ z, a @ z
-    s = min(qd_max / np.abs(qd).max(), qdd_max / np.abs(qdd).max())
-    if q.max() > 0:
-        s = min(s, q_high / q.max())
-    if q.min() < 0:
-        s = min(s, q_low / -q.min())
-    return s
-
-
 def _design_periods(periods: int, duration: float, q_min: float, q_max: float, qd_max: float,
                     qdd_max: float, q_start: float, threshold: float, n_harmonics: int, slow_factor: float,
                     lost_weight: float, evaluations: int, margin: float) -> tuple[np.ndarray, float, float]:
@@ -198,10 +188,15 @@ def _design_periods(periods: int, duration: float, q_min: float, q_max: float, q
     q_low, q_high = q_start - q_min, q_max - q_start
     reach = int(math.ceil(reach_time * GRID_RATE))
 
+    def scale(z) -> tuple[float, np.ndarray, np.ndarray]:
+        """The factor that scales z to the limits, and the unscaled q̇, q̈."""
+        qd, qdd = v @ z, a @ z
+        return _limit_scale(p @ z, qd, qdd, q_high, q_low, qd_max, qdd_max), qd, qdd
+
     def objective(z):
-        s = _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max)
-        qd = s * (v @ z)
-        cond, kept = pair_condition(qd, s * (a @ z), KEEP_FACTOR * threshold)
+        s, qd, qdd = scale(z)
+        qd = s * qd
+        cond, kept = pair_condition(qd, s * qdd, KEEP_FACTOR * threshold)
         if not math.isfinite(cond):
             return 50.0
         near = near_reversal(qd, slow, reach) & (np.abs(qd) >= threshold)
@@ -210,7 +205,7 @@ def _design_periods(periods: int, duration: float, q_min: float, q_max: float, q
     res = optimize.minimize(objective, z0, method="Powell",
                             options={"maxfev": evaluations, "xtol": 1e-4, "ftol": 1e-7})
     z = res.x if res.fun <= objective(z0) else z0
-    z = z * margin * _scaled(z, p, v, a, q_low, q_high, qd_max, qdd_max)
+    z = z * margin * scale(z)[0]
     cond = pair_condition(v @ z, a @ z, threshold)[0]
     return null @ z, cond, float(np.sqrt(np.mean((a @ z) ** 2)))
 
