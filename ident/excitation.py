@@ -10,7 +10,7 @@ The campaign (section 6.2) runs four simple movements, in this order:
 Each excited coordinate is a rest-to-rest finite Fourier series, designed by one of :data:`CRITERIA`:
 :func:`qomni.ident.fourier.design_fourier_trajectory` (richness) or
 :func:`qomni.ident.min_cond_design.design_min_cond_trajectory` (the viscous/Coulomb pair's condition
-number; the full campaign's default).
+number; an option, ``CampaignSettings.excitation``).
 
 After it the campaign drives two arcs (:func:`arc_excitation`), one to each side: mode 2 at a held virtual
 steering angle, the chassis yawing about an instantaneous centre beside it, a configuration no
