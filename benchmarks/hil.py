@@ -9,8 +9,9 @@ Measured in the same run, each against a baseline measured alongside:
    against the same master and hub with an echo responder (python-can's socketcand client, like the
    emulator) that answers each SYNC with the same 10 frames and does nothing else: the floor of Python
    + loopback TCP on this machine. ``--pin 0:1`` pins hub + master and the device to CPU lists;
+   The emulator runs twice: physics in the bus' process, and in a process of its own (``--plant-process``);
 2. the lock-step CANopen cycle against the bare PyBullet physics of a cycle, and the lock-step campaign
-   (quick or full) against real time;
+   (quick or full) against real time, each with the emulator in the bus' process and in its own;
 3. bus load of the active mapping (shipped EDS files) at 1 Mbit/s and 500 kbit/s, worst-case bit
    stuffing, against the bus capacity.
 """
@@ -52,11 +53,11 @@ def _bench_run_module():
     return module
 
 
-def lockstep_campaign(quick: bool) -> tuple[float, float]:
+def lockstep_campaign(quick: bool, plant_process: bool = False) -> tuple[float, float]:
     """(emulated s, wall s) of the lock-step campaign (benchmarks/run.py's measurement)."""
     from qomni.emulator.description import VehicleDescription
 
-    return _bench_run_module().campaign(VehicleDescription.load(), quick)[:2]
+    return _bench_run_module().campaign(VehicleDescription.load(), quick, plant_process)[:2]
 
 
 # ------------------------------------------------------------------ real-time master and echo responder
@@ -252,7 +253,8 @@ def _stop(process: subprocess.Popen) -> None:
 
 
 def realtime_run(device: str, duration: float, pin: tuple[str, str] | None) -> tuple[dict, dict]:
-    """(device stats, master's view) of one real-time run against ``device`` ('emulator' or 'echo'): the
+    """(device stats, master's view) of one real-time run against ``device`` ('emulator',
+    'emulator-process' (its physics in a process of its own) or 'echo'): the
     hub, the device and the master each a process of its own (``pin``: CPU lists of hub + master and
     of the device)."""
     master_cpus, device_cpus = pin or (None, None)
@@ -262,13 +264,14 @@ def realtime_run(device: str, duration: float, pin: tuple[str, str] | None) -> t
     spec = hub_bus_spec(port)
     with tempfile.TemporaryDirectory() as tmp:
         stats_path, master_path = Path(tmp) / "stats.json", Path(tmp) / "master.json"
-        if device == "emulator":
+        if device.startswith("emulator"):
             cmd = [*QOMNI, "emulate", "--realtime", "--bus", spec, "--stats", str(stats_path),
-                   "--sync-timeout", "1.0"] + (["--cpus", device_cpus] if device_cpus else [])
+                   "--sync-timeout", "1.0"] + (["--cpus", device_cpus] if device_cpus else []) \
+                + (["--plant-process"] if device == "emulator-process" else [])
         else:
             cmd = [sys.executable, __file__, "--echo", spec, "--stats", str(stats_path)]
         try:
-            process, _ = _start(cmd, "emulating", None if device == "emulator" else device_cpus)
+            process, _ = _start(cmd, "emulating", None if device.startswith("emulator") else device_cpus)
             try:
                 master = [sys.executable, __file__, "--master", str(port), "--duration", str(duration),
                           "--stats", str(master_path)]
@@ -336,22 +339,28 @@ def main() -> None:
 
     echo, echo_master = realtime_run("echo", duration, pin)
     emu, emu_master = realtime_run("emulator", duration, pin)
+    emp, emp_master = realtime_run("emulator-process", duration, pin)
     print(f"\nreal time, {duration:g} s at {1 / T_S:g} Hz; hub, master and device each a process"
-          + (f" (hub + master on CPU {pin[0]}, device on CPU {pin[1]})" if pin else ""))
-    print(f"  {'':36s} {'echo (baseline)':>16s} {'emulator':>16s} {'ratio':>8s}")
-    for view, e, m in (("device", echo, emu), ("master", echo_master, emu_master)):
+          + (f" (hub + master on CPU {pin[0]}, device on CPU {pin[1]})" if pin else "")
+          + "; ratios against the echo floor")
+    print(f"  {'':36s} {'echo (baseline)':>16s} {'emulator':>16s} {'ratio':>8s} {'plant process':>16s} "
+          f"{'ratio':>8s}")
+    for view, e, m, p in (("device", echo, emu, emp), ("master", echo_master, emu_master, emp_master)):
         for key, label in (("latency_median", "median"), ("latency_p99", "p99"), ("latency_max", "max")):
             print(f"  {f'SYNC→last TPDO {label} ({view})':36s} {_us(e[key]):>16s} {_us(m[key]):>16s} "
-                  f"{_ratio(m[key], e[key])}")
+                  f"{_ratio(m[key], e[key])} {_us(p[key]):>16s} {_ratio(p[key], e[key])}")
         print(f"  {f'late cycles > T_s/2 ({view})':36s} {_pct(e['late_fraction']):>16s} "
-              f"{_pct(m['late_fraction']):>16s} {_ratio(m['late_fraction'], e['late_fraction'])}")
+              f"{_pct(m['late_fraction']):>16s} {_ratio(m['late_fraction'], e['late_fraction'])} "
+              f"{_pct(p['late_fraction']):>16s} {_ratio(p['late_fraction'], e['late_fraction'])}")
     for label, key, note in (("cycles answered incompletely", "incomplete_cycles", "   (master's view, by next SYNC)"),
                              ("master SYNC sends > T_s/2 late", "late_sends", "")):
         print(f"  {label:36s} {_pct(echo_master[key] / echo_master['syncs']):>16s} "
-              f"{_pct(emu_master[key] / emu_master['syncs']):>16s}{note}")
+              f"{_pct(emu_master[key] / emu_master['syncs']):>16s} {'':8s} "
+              f"{_pct(emp_master[key] / emp_master['syncs']):>16s}{note}")
     if emu.get("physics_ticks"):
-        late_ticks = emu["physics_late"] / emu["physics_ticks"]
-        print(f"  {'physics ticks > 1 cycle late':36s} {'':>16s} {_pct(late_ticks):>16s}")
+        print(f"  {'physics ticks > 1 cycle late':36s} {'':>16s} "
+              f"{_pct(emu['physics_late'] / emu['physics_ticks']):>16s} {'':8s} "
+              f"{_pct(emp['physics_late'] / max(1, emp['physics_ticks'])):>16s}")
 
     bench = _bench_run_module()
     from qomni.emulator.description import VehicleDescription
@@ -360,13 +369,18 @@ def main() -> None:
     bare = bench.bare_pybullet_step(description, 2000)
     physics = bare * round(T_S / 0.001)
     cycle, _ = bench.lockstep_cycle(description, 500)
+    cycle_pp, _ = bench.lockstep_cycle(description, 500, plant_process=True)
     print(f"\nbare PyBullet step {bare * 1e6:.1f} µs (baseline; physics of a cycle {physics * 1e6:.0f} µs)")
     print(f"  lock-step CANopen cycle {cycle * 1e6:.0f} µs = {cycle / physics:.2f} × bare physics of a cycle")
+    print(f"  the same, emulator in a process of its own {cycle_pp * 1e6:.0f} µs = {cycle_pp / physics:.2f} × "
+          f"bare physics of a cycle")
     print(f"  real time, emulator median / p99 SYNC→last TPDO (device) = {emu['latency_median'] / physics:.2f} / "
           f"{emu['latency_p99'] / physics:.2f} × bare physics of a cycle")
     emulated, wall = lockstep_campaign(args.quick)
     print(f"\nlock-step campaign ({'quick' if args.quick else 'full'}): {emulated:.1f} s emulated in {wall:.1f} s "
           f"wall = {emulated / wall:.2f} × real time (baseline 1.00)")
+    emulated, wall = lockstep_campaign(args.quick, plant_process=True)
+    print(f"  the same, emulator in a process of its own: {wall:.1f} s wall = {emulated / wall:.2f} × real time")
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
 
 

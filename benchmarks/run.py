@@ -3,9 +3,10 @@
 Measured in the same run, so the ratios hold on a noisy shared machine:
 1. emulator physics step vs. bare PyBullet stepping of the same URDF (same time step, no drives), also
    with every unmodelled effect on at its example magnitude;
-2. one lock-step CANopen cycle (client + server + emulator, virtual bus) vs. the bare physics of a cycle;
+2. one lock-step CANopen cycle (client + server + emulator, virtual bus) vs. the bare physics of a cycle,
+   with the emulator in the bus' process and in a process of its own (``--plant-process`` of the CLI);
 3. the campaign controller's command per cycle vs. the bare physics of a cycle;
-4. the lock-step campaign (quick or full) vs. real time.
+4. the lock-step campaign (quick or full) vs. real time, both ways.
 
 2 and 4 also in CPU time of the process (all its threads): the work a cycle costs, which the other
 load of a shared machine disturbs far less than the wall time.
@@ -13,6 +14,7 @@ load of a shared machine disturbs far less than the wall time.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -29,6 +31,7 @@ from qomni.emulator.description import VehicleDescription  # noqa: E402
 from qomni.emulator.effects import REGISTRY, EffectSet  # noqa: E402
 from qomni.emulator.urdf import vehicle_urdf  # noqa: E402
 from qomni.emulator.vehicle import Emulator  # noqa: E402
+from qomni.hil.device.plant_process import default_spin  # noqa: E402
 
 
 def best_of(fn, repeats: int = 3) -> float:
@@ -79,12 +82,14 @@ def emulator_step(description: VehicleDescription, steps: int, effects=None) -> 
         return best_of(run)
 
 
-def lockstep_cycle(description: VehicleDescription, cycles: int) -> tuple[float, float]:
+def lockstep_cycle(description: VehicleDescription, cycles: int,
+                   plant_process: bool = False) -> tuple[float, float]:
     """(wall s, CPU s of the whole process, all threads) per lock-step cycle, each the best of 3 runs.
-    CPU time is the work done; on a shared machine it is far less disturbed than wall time."""
+    CPU time is the work done; on a shared machine it is far less disturbed than wall time (with
+    ``plant_process`` it leaves out the plant's process)."""
     from qomni.embedded import embedded_vehicle
 
-    with embedded_vehicle(description, seed=0) as client:
+    with embedded_vehicle(description, seed=0, plant_process=plant_process) as client:
         def run() -> tuple[float, float]:
             t, c = time.perf_counter(), time.process_time()
             for k in range(cycles):
@@ -121,9 +126,10 @@ def controller_command(quick: bool) -> float:
     return best_of(one)
 
 
-def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float, float]:
+def campaign(description: VehicleDescription, quick: bool,
+             plant_process: bool = False) -> tuple[float, float, float]:
     """(emulated s, wall s, CPU s of the process) of a lock-step campaign against the embedded emulator
-    over CAN."""
+    over CAN (``plant_process``: the emulator in a process of its own)."""
     from qomni.ident.campaign import Campaign, CampaignSettings
     from qomni.datasheet import DataSheet
     from qomni.embedded import embedded_vehicle
@@ -131,7 +137,7 @@ def campaign(description: VehicleDescription, quick: bool) -> tuple[float, float
     with tempfile.TemporaryDirectory() as tmp:
         settings = CampaignSettings.quick() if quick else CampaignSettings()
         run = Campaign(DataSheet.load(), tmp, settings)
-        with embedded_vehicle(description, seed=0) as client:
+        with embedded_vehicle(description, seed=0, plant_process=plant_process) as client:
             t, c = time.perf_counter(), time.process_time()
             run.run(client)
             wall, cpu = time.perf_counter() - t, time.process_time() - c
@@ -149,8 +155,10 @@ def main() -> None:
     every_effect = EffectSet.combine(*(EffectSet.example(name) for name in REGISTRY))
     emu_effects = emulator_step(d, steps, every_effect)
     cycle, cycle_cpu = lockstep_cycle(d, 500 if args.quick else 1500)
+    cycle_pp, _ = lockstep_cycle(d, 500 if args.quick else 1500, plant_process=True)
     command = controller_command(args.quick)
     emulated, wall, cpu = campaign(d, args.quick)
+    _, wall_pp, _ = campaign(d, args.quick, plant_process=True)
     physics_per_cycle = bare * round(d.drive.cycle_time / 0.001)
     rows = [
         ("bare PyBullet step (same URDF, 1 ms)", f"{bare * 1e6:8.1f} µs", "1.00 (baseline)"),
@@ -162,12 +170,17 @@ def main() -> None:
          f"{cycle / physics_per_cycle:.2f} × bare physics of a cycle"),
         ("  the same, CPU time of the process (all threads)", f"{cycle_cpu * 1e6:8.1f} µs",
          f"{cycle_cpu / (bare_cpu * round(d.drive.cycle_time / 0.001)):.2f} × bare physics of a cycle (CPU)"),
+        ("  the same, emulator in a process of its own", f"{cycle_pp * 1e6:8.1f} µs",
+         f"{cycle_pp / physics_per_cycle:.2f} × bare physics of a cycle"),
         ("campaign controller command (per cycle)", f"{command * 1e6:8.1f} µs",
          f"{command / physics_per_cycle:.2f} × bare physics of a cycle"),
         (f"campaign ({'quick' if args.quick else 'full'}, {emulated:.1f} s emulated)", f"{wall:8.1f} s",
          f"{emulated / wall:.2f} × real time"),
         ("  the same, CPU time of the process", f"{cpu:8.1f} s", f"{emulated / cpu:.2f} × real time"),
+        ("  the same, emulator in a process of its own", f"{wall_pp:8.1f} s", f"{emulated / wall_pp:.2f} × real time"),
     ]
+    print(f"machine: {len(os.sched_getaffinity(0))} CPUs usable, load average {os.getloadavg()[0]:.2f} at the "
+          f"end; plant process polls {default_spin() * 1e3:g} ms before it blocks")
     width = max(len(r[0]) for r in rows)
     print(f"{'benchmark':<{width}}  {'cost':>11}  ratio")
     for name, cost, ratio in rows:

@@ -93,6 +93,8 @@ class Emulator:
         self.time_step = time_step
         self.lifted = lifted
         self._rng = np.random.default_rng(seed)
+        self._i_G, self._increments = d.drive.i_G, d.drive.encoder_increments
+        self._ripple_sigma = d.noise.motor_torque_ripple
         self._steps = 0
         self._commanded = np.zeros(4)
         self._applied = np.zeros(4)
@@ -111,7 +113,10 @@ class Emulator:
             self._physics_step()
         self._steps = 0
         self._sensed_joints = [*self._plant.encoder_joints, self._steer[0], self._steer[2]]
+        self._n_encoders = len(self._plant.encoder_joints)
         self._angles_now = self._angles_before = self._sensed_angles()
+        self._sampled = self._sampled_angles()
+        self._counts_of: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         self._position_history.clear()
         self._position_history.append(self._wheel_angles())
 
@@ -199,19 +204,20 @@ class Emulator:
 
     def step(self, duration: float) -> None:
         """Advance the physics by ``duration`` s (rounded to whole physics steps)."""
+        history = self._position_history
         for _ in range(round(duration / self.time_step)):
             self._physics_step()
             self._read_sensed_joints()
-            self._position_history.append(self._wheel_angles())
+            history.append(self._wheel_angles())
 
     def _physics_step(self) -> None:
         # Torque ripple: zero-mean, fresh every physics step, only while the drive produces torque.
-        ripple = self._rng.normal(0.0, self.description.noise.motor_torque_ripple, 4)
+        ripple = self._rng.normal(0.0, self._ripple_sigma, 4)
         applied = self._commanded + ripple * (self._commanded != 0)
         for effect in self._shapers:
             applied = effect.drive_torque(applied)
         self._applied = applied
-        wheel_torque = self.description.drive.i_G * applied
+        wheel_torque = self._i_G * applied
         plant = self._plant
         if self._steppers:
             plant.torque[:] = 0.0
@@ -237,6 +243,7 @@ class Emulator:
     def _read_sensed_joints(self) -> None:
         """Advance the sensed joints' angles by the physics step just taken."""
         self._angles_before, self._angles_now = self._angles_now, self._sensed_angles()
+        self._sampled = self._sampled_angles()
 
     def _sampled_angles(self) -> np.ndarray:
         """The sensed joints' angles at the sampling instant of the continuous motion, rad.
@@ -252,21 +259,26 @@ class Emulator:
 
     def _wheel_angles(self) -> np.ndarray:
         """Angles the motor encoders see, wheel side (the wheels, or the motor rotors behind a gear)."""
-        return self._sampled_angles()[:len(self._plant.encoder_joints)]
+        return self._sampled[:self._n_encoders]
 
     def _encoder_counts(self, wheel_angles: np.ndarray) -> np.ndarray:
         """Motor encoder positions (increments, int64) of wheel-side angles (rad)."""
-        drive = self.description.drive
-        return np.floor(wheel_angles * drive.i_G / (2 * math.pi) * drive.encoder_increments).astype(np.int64)
+        source, counts = self._counts_of
+        if wheel_angles is source:                  # the last read's newest sample (T_s = the window)
+            return counts
+        counts = np.floor(wheel_angles * self._i_G / (2 * math.pi) * self._increments).astype(np.int64)
+        self._counts_of = (wheel_angles, counts)
+        return counts
 
     def read_sensors(self) -> SensorReading:
         """Sample every sensor now, at data-sheet resolution (see ``SensorReading``)."""
         drive, noise = self.description.drive, self.description.noise
         history = self._position_history
+        oldest = self._encoder_counts(history[0])
         position = self._encoder_counts(history[-1])
         span = (len(history) - 1) * self.time_step
         if span > 0:
-            velocity = ((position - self._encoder_counts(history[0])) / span).round().astype(np.int64)
+            velocity = ((position - oldest) / span).round().astype(np.int64)
         else:
             velocity = np.zeros(4, dtype=np.int64)
         torque = self._commanded.copy()
@@ -274,7 +286,7 @@ class Emulator:
             torque = effect.reported_torque(torque)
         torque = torque + self._rng.normal(0.0, noise.torque_measurement, 4)
         full = 2 ** drive.steering_sensor_bits
-        alpha = self._sampled_angles()[-2:]
+        alpha = self._sampled[-2:]
         counts = np.round(alpha / (2 * math.pi) * full
                           + self._rng.normal(0.0, noise.steering_sensor_lsb, 2))
         return SensorReading(time=self.time, motor_position=position.copy(), motor_velocity=velocity,

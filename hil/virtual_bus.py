@@ -21,6 +21,14 @@ devices and the client's listeners never do.
 Frames are delivered to plain queues (``virtual`` buses, and inline buses not attached) before the
 inline listeners of the same frame run, so a passive observer on the channel sees the SYNC before the
 TPDOs it causes.
+
+**The frame lane.** An 11-bit data frame (the PDOs, SYNC, NMT, SDO of CiA 301) needs no
+:class:`can.Message` on its way between two inline networks. A listener with an
+``on_frame(can_id, data, timestamp)`` method (the devices' listener, the bus recorder), and canopen's
+own ``MessageListener`` (whose work is ``network.notify(can_id, data, timestamp)``), takes the frame as
+those three values; :meth:`InlineVirtualBus.send_frame` sends one without building a message where no
+receiver needs it. A receiver with any other listener, and every plain ``virtual`` bus, still gets its
+own :class:`can.Message` copy. Same frames, same order, same time stamps either way.
 """
 from __future__ import annotations
 
@@ -32,6 +40,7 @@ from typing import Callable, Iterable
 
 import can
 from can.interfaces.virtual import VirtualBus, channels_lock
+from canopen.network import MessageListener
 
 logger = logging.getLogger(__name__)
 
@@ -73,20 +82,22 @@ def data_frame(can_id: int, data: bytes) -> can.Message:
 
 
 class _Inbox(queue.Queue):
-    """The receive queue of an :class:`InlineVirtualBus`; ``deliver`` set = listeners called inline."""
+    """The receive queue of an :class:`InlineVirtualBus`; ``deliver`` set = listeners called inline
+    with a message, ``deliver_frame`` set = they also take a frame as (can_id, data, timestamp)."""
 
     deliver: Callable[[can.Message], None] | None = None
+    deliver_frame: Callable[[int, bytes, float], None] | None = None
 
     def put(self, item, block=True, timeout=None):         # a plain VirtualBus sender lands here
         deliver = self.deliver
         if deliver is None:
             super().put(item, block, timeout)
         else:
-            _dispatch([(deliver, item)])
+            _dispatch([(deliver, (item,))])
 
 
 def _dispatch(items: list) -> None:
-    """Run each ``(deliver, msg)`` now if this thread is not delivering already, else after the frames
+    """Run each ``(function, args)`` now if this thread is not delivering already, else after the frames
     already queued in this thread: one first-in, first-out order per thread for every receiver."""
     pending = getattr(_local, "pending", None)
     if pending is not None:
@@ -96,17 +107,34 @@ def _dispatch(items: list) -> None:
     try:
         i = 0
         while i < len(pending):                         # grows while listeners send
-            _call(*pending[i])
+            function, args = pending[i]
+            try:
+                function(*args)
+            except Exception:                           # noqa: BLE001 - a Notifier would log it too
+                first = args[0]
+                logger.exception("listener failed on frame 0x%X",
+                                 first if isinstance(first, int) else first.arbitration_id)
             i += 1
     finally:
         _local.pending = None
 
 
-def _call(deliver: Callable[[can.Message], None], msg: can.Message) -> None:
-    try:
-        deliver(msg)
-    except Exception:                                   # noqa: BLE001 - a Notifier would log it too
-        logger.exception("listener failed on frame 0x%X", msg.arbitration_id)
+def _frame_entry(listener: can.Listener) -> Callable[[int, bytes, float], None] | None:
+    """How ``listener`` takes a frame as (can_id, data, timestamp), or None if it needs a message."""
+    on_frame = getattr(listener, "on_frame", None)
+    if on_frame is not None:
+        return on_frame
+    if type(listener) is MessageListener:
+        notify = listener.network.notify
+
+        def to_network(can_id: int, data: bytes, timestamp: float) -> None:
+            try:
+                notify(can_id, data, timestamp)
+            except Exception as exc:                    # noqa: BLE001 - as canopen's MessageListener
+                logger.error(str(exc))
+
+        return to_network
+    return None
 
 
 class InlineVirtualBus(VirtualBus):
@@ -132,16 +160,49 @@ class InlineVirtualBus(VirtualBus):
             for listener in targets:
                 listener.on_message_received(msg)
 
+        entries = [_frame_entry(listener) for listener in targets]
+        deliver_frame = None
+        if entries and None not in entries:
+            if len(entries) == 1:
+                deliver_frame = entries[0]
+            else:
+                def deliver_frame(can_id: int, data: bytes, timestamp: float) -> None:
+                    for entry in entries:
+                        entry(can_id, data, timestamp)
+        self.queue.deliver_frame = deliver_frame
         self.queue.deliver = deliver
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
         timestamp = msg.timestamp if self.preserve_timestamps else time.time()
+        if (msg.arbitration_id <= 0x7FF and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
+                                                 or msg.is_fd) and msg.dlc == len(msg.data) <= 8):
+            self._send(msg.arbitration_id, bytes(msg.data), timestamp, msg, timeout)
+        else:
+            self._send(msg.arbitration_id, None, timestamp, msg, timeout)
+
+    def send_frame(self, can_id: int, data: bytes) -> None:
+        """Send the 11-bit data frame ``can_id`` (≤ 0x7FF) with ``data`` (bytes, ≤ 8): what
+        ``send(data_frame(can_id, data))`` does, without a message for receivers that take frames
+        (module docstring). For senders whose frames are valid by construction; nothing is checked."""
+        self._check_if_open()
+        self._send(can_id, data, 0.0 if self.preserve_timestamps else time.time(), None, None)
+
+    def _send(self, can_id: int, data: bytes | None, timestamp: float, msg: can.Message | None,
+              timeout: float | None) -> None:
+        """Deliver to every receiver on the channel; ``data`` None: the frame needs its message ``msg``."""
         channel, own = self.channel_id, self.queue
         inline = []
         for inbox in tuple(self.channel):
             if inbox is own and not self.receive_own_messages:
                 continue
+            if data is not None and inbox is not own:
+                deliver_frame = getattr(inbox, "deliver_frame", None)
+                if deliver_frame is not None:
+                    inline.append((deliver_frame, (can_id, data, timestamp)))
+                    continue
+            if msg is None:
+                msg = data_frame(can_id, data)
             copy = copy_message(msg, timestamp, channel)
             if inbox is own:
                 copy.is_rx = False
@@ -152,12 +213,12 @@ class InlineVirtualBus(VirtualBus):
                 except queue.Full:
                     raise can.CanOperationError("Could not send message to one or more recipients") from None
             else:
-                inline.append((deliver, copy))
+                inline.append((deliver, (copy,)))
         if inline:
             _dispatch(inline)
 
     def shutdown(self) -> None:
-        self.queue.deliver = None
+        self.queue.deliver = self.queue.deliver_frame = None
         super().shutdown()
 
 

@@ -6,6 +6,7 @@ This module is part of the composition root (the CLI); ``ident`` and ``fmu`` nev
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import os
 from pathlib import Path
@@ -15,6 +16,7 @@ from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.emulator.vehicle import Emulator
 from qomni.hil.master.client import VehicleClient
+from qomni.hil.device.plant_process import PlantProcess
 from qomni.hil.device.server import VehicleServer
 
 _channels = itertools.count()
@@ -31,7 +33,8 @@ LOSSY_TIMEOUT = 0.5
 @contextlib.contextmanager
 def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: bool = False,
                      gui: bool = False, record: str | Path | None = None,
-                     effects: EffectSet | None = None, faults=None) -> Iterator[VehicleClient]:
+                     effects: EffectSet | None = None, faults=None, plant_process: bool = False,
+                     spin: float | None = None) -> Iterator[VehicleClient]:
     """Start the emulated vehicle on a private virtual bus and yield a connected client.
 
     Args:
@@ -42,9 +45,13 @@ def embedded_vehicle(description: VehicleDescription, *, seed: int = 0, lifted: 
         record: log file(s) for every frame on the bus (``.blf``, ``.log`` candump; qomni.hil.tools.recorder).
         effects: unmodelled effects on the ideal vehicle (``None``: the prototype as described).
         faults: a :class:`qomni.hil.device.faults.FaultPlan` injected on the emulator's side of the bus.
+        plant_process: run the emulator in a process of its own (:class:`qomni.hil.device.plant_process.
+            PlantProcess`): its physics overlaps the bus side's work; same frames and states bit for bit.
+        spin: with ``plant_process``, s each side polls before it blocks (default: by the CPU count).
     """
     bus = f"virtual:qomni-embedded-{os.getpid()}-{next(_channels)}"
-    emulator = Emulator(description, seed=seed, lifted=lifted, gui=gui, effects=effects)
+    factory = functools.partial(Emulator, description, seed=seed, lifted=lifted, gui=gui, effects=effects)
+    emulator = PlantProcess(factory, spin=spin) if plant_process else factory()
     server = VehicleServer(emulator, bus, sync_timeout=LOCKSTEP_SYNC_TIMEOUT, faults=faults)
     try:
         server.start()

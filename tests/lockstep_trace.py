@@ -44,6 +44,17 @@ class TracingPlant:
         self.states.append(np.concatenate([[s.time], s.pose, s.velocity, s.alpha, s.alpha_rear, s.alpha_dot,
                                            s.beta, s.beta_dot, s.applied_motor_torque]))
 
+    def close(self) -> None:
+        self._emulator.close()
+
+
+def tracing_emulator(seed: int) -> TracingPlant:
+    """The prototype's emulator behind a TracingPlant (a factory for a plant in its own process)."""
+    from qomni.emulator.description import VehicleDescription
+    from qomni.emulator.vehicle import Emulator
+
+    return TracingPlant(Emulator(VehicleDescription.load(), seed=seed))
+
 
 def torques(k: int) -> np.ndarray:
     """The run's motor torques at cycle k [N m motor side]: four different sines, one saturating."""
@@ -51,10 +62,13 @@ def torques(k: int) -> np.ndarray:
     return np.array([0.3, -0.25, 0.2, 2.0]) * np.sin(2 * np.pi * k / 40 + phase)
 
 
-def record(cycles: int = CYCLES, seed: int = SEED) -> dict[str, np.ndarray]:
-    """Run the vehicle in lock-step for ``cycles`` SYNCs; returns the arrays of the reference file."""
+def record(cycles: int = CYCLES, seed: int = SEED, plant_process: bool = False) -> dict[str, np.ndarray]:
+    """Run the vehicle in lock-step for ``cycles`` SYNCs; returns the arrays of the reference file.
+    ``plant_process``: the plant in a process of its own (:class:`qomni.hil.device.plant_process.PlantProcess`)."""
+    import functools
+
     from qomni.emulator.description import VehicleDescription
-    from qomni.emulator.vehicle import Emulator
+    from qomni.hil.device.plant_process import PlantProcess
     from qomni.hil.device.server import VehicleServer
     from qomni.hil.master.client import VehicleClient
 
@@ -62,8 +76,8 @@ def record(cycles: int = CYCLES, seed: int = SEED) -> dict[str, np.ndarray]:
     channel = f"trace-{uuid.uuid4().hex[:10]}"
     tracer = can.Bus(interface="virtual", channel=channel)    # first on the channel: sees frames first
     frames: list[can.Message] = []
-    emulator = Emulator(description, seed=seed)
-    plant = TracingPlant(emulator)
+    factory = functools.partial(tracing_emulator, seed)
+    plant = PlantProcess(factory) if plant_process else factory()
     server = VehicleServer(plant, f"virtual:{channel}", sync_timeout=5.0)
     measurements = []
     try:
@@ -74,9 +88,10 @@ def record(cycles: int = CYCLES, seed: int = SEED) -> dict[str, np.ndarray]:
                 m = client.exchange(torques(k))
                 measurements.append(np.concatenate([[m.time], m.motor_position, m.motor_velocity,
                                                     m.motor_torque, m.alpha]))
+        states = np.array(plant.states)
     finally:
         server.stop()
-        emulator.close()
+        plant.close()
         while (msg := tracer.recv(0.0)) is not None:
             frames.append(msg)
         tracer.shutdown()
@@ -86,7 +101,7 @@ def record(cycles: int = CYCLES, seed: int = SEED) -> dict[str, np.ndarray]:
         data[i, :f.dlc] = np.frombuffer(bytes(f.data), dtype=np.uint8)
     return {"arbitration_id": np.array([f.arbitration_id for f in kept], dtype=np.uint32),
             "dlc": np.array([f.dlc for f in kept], dtype=np.uint8), "data": data,
-            "plant_state": np.array(plant.states), "measurement": np.array(measurements)}
+            "plant_state": states, "measurement": np.array(measurements)}
 
 
 if __name__ == "__main__":

@@ -101,3 +101,48 @@ def test_pdo_codec_rejects_bad_mappings():
         build_codec(od, [0x60640020, 0x606C0020, 0x60410010], receive=False)   # 10 bytes
     codec = build_codec(od, [0x00050008, 0x60710010], receive=True)          # dummy byte + torque
     assert codec.keys == ((0x6071, 0),) and codec.size == 3
+
+
+def test_frame_lane_delivers_what_a_message_would():
+    """An inline canopen network takes 11-bit data frames as (can_id, data, timestamp) without a message;
+    a plain ``virtual`` peer and a listener without ``on_frame`` still get messages. Same frames, same order,
+    whether sent with ``send_frame`` or ``send``, and a frame sent from inside a listener comes after the
+    one being delivered everywhere."""
+    import can
+
+    from qomni.hil.virtual_bus import InlineVirtualBus, attach_inline, _frame_entry
+
+    channel = "hil-frame-lane-test"
+    peer = can.Bus(interface="virtual", channel=channel)
+    sender, receiver = InlineVirtualBus(channel), InlineVirtualBus(channel)
+    network = canopen.Network(receiver)
+    network.connect()
+    attach_inline(network)
+    assert receiver.queue.deliver_frame is not None
+    seen = []
+
+    def on_frame(can_id, data, timestamp):
+        seen.append((can_id, bytes(data), timestamp > 0))
+        if can_id == 0x80:                               # answer the SYNC from inside the listener
+            receiver.send_frame(0x181, b"\x01\x02")
+
+    for cob_id in (0x80, 0x201, 0x7FF):
+        network.subscribe(cob_id, on_frame)
+    try:
+        sender.send_frame(0x201, b"\xAA\xBB")
+        sender.send(can.Message(arbitration_id=0x7FF, data=b"\x01", is_extended_id=False))
+        sender.send_frame(0x80, b"")
+        sender.send(can.Message(arbitration_id=0x201, data=b"\x02", is_extended_id=True))   # 29-bit: message path
+        # canopen's own listener passes a 29-bit frame on by its number; the message path keeps that
+        assert seen == [(0x201, b"\xAA\xBB", True), (0x7FF, b"\x01", True), (0x80, b"", True),
+                        (0x201, b"\x02", True)]
+        got = [peer.recv(1.0) for _ in range(5)]
+        assert [(m.arbitration_id, bytes(m.data), m.is_extended_id) for m in got] == [
+            (0x201, b"\xAA\xBB", False), (0x7FF, b"\x01", False), (0x80, b"", False),
+            (0x181, b"\x01\x02", False), (0x201, b"\x02", True)]
+        assert peer.recv(0.0) is None
+        assert _frame_entry(can.BufferedReader()) is None      # such a listener keeps the message path
+    finally:
+        network.disconnect()
+        sender.shutdown()
+        peer.shutdown()

@@ -10,6 +10,7 @@ in order.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lockstep_trace import REFERENCE, record
 
@@ -26,9 +27,10 @@ def _first_mismatch(a: np.ndarray, b: np.ndarray) -> int | None:
     return int(diff[0]) if len(diff) else (None if len(a) == len(b) else n)
 
 
-def test_lockstep_run_is_bit_identical_to_the_reference_trace():
+@pytest.mark.parametrize("plant_process", [False, True], ids=["plant in the bus' process", "plant process"])
+def test_lockstep_run_is_bit_identical_to_the_reference_trace(plant_process):
     reference = np.load(REFERENCE)
-    trace = record()
+    trace = record(plant_process=plant_process)
     frames = {key: np.column_stack([trace["arbitration_id"], trace["dlc"], trace["data"]]).astype(np.int64)
               for key, trace in (("run", trace), ("reference", reference))}
     run, ref = frames["run"], frames["reference"]

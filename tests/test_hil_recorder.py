@@ -72,3 +72,23 @@ def test_a_writer_process_that_dies_costs_frames_not_the_master(tmp_path):
     assert recorder.errors >= R.BATCH_FRAMES
     recorder.on_message_received(_frames(1)[0])                  # after stop: ignored
     assert recorder.frames == 2 * R.BATCH_FRAMES
+
+
+def test_frames_given_as_values_are_recorded_as_their_messages(tmp_path):
+    """The in-process bus hands data frames over as (can_id, data, timestamp) (qomni.hil.virtual_bus):
+    ``on_frame`` and ``on_transmit_frame`` record exactly what ``on_message_received`` and ``on_transmit`` of
+    the same frame's message record."""
+    by_values, by_messages = R.BusRecorder(tmp_path / "a.log"), R.BusRecorder(tmp_path / "b.log")
+    for i in range(20):
+        data = bytes(range(i % 9))
+        msg = can.Message(timestamp=1.7e9 + i, arbitration_id=0x181 + i, data=data, is_extended_id=False,
+                          is_rx=True)
+        by_values.on_frame(0x181 + i, data, 1.7e9 + i)
+        by_messages.on_message_received(msg)
+        by_values.on_transmit_frame(0x201, data)
+        by_messages.on_transmit(can.Message(arbitration_id=0x201, data=data, is_extended_id=False))
+    by_values.stop()
+    by_messages.stop()
+    a, b = (list(can.LogReader(tmp_path / name)) for name in ("a.log", "b.log"))
+    assert len(a) == 40 and [_fields(m) for m in a] == [_fields(m) for m in b]
+    assert [m.timestamp for m in a[::2]] == [m.timestamp for m in b[::2]]      # received: their own stamp

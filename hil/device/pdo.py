@@ -178,6 +178,7 @@ class PdoService:
             return
         count, values, network = self._sync_count, self.values, self.network
         bus, lock = network.bus, network.send_lock
+        send_frame = getattr(bus, "send_frame", None)       # the in-process bus's frame lane
         for pdo in self._tpdos:
             trans = pdo.trans_type
             if 1 <= trans <= 240:
@@ -189,9 +190,11 @@ class PdoService:
                 if data == pdo.last_data:
                     continue
                 pdo.last_data = data
-            frame = data_frame(pdo.cob_id, data)       # canopen's send_message, less its checks
             with lock:
-                bus.send(frame)
+                if send_frame is not None:
+                    send_frame(pdo.cob_id, data)
+                else:
+                    bus.send(data_frame(pdo.cob_id, data))     # canopen's send_message, less its checks
 
     def sync_length_error(self) -> None:
         """Report a SYNC frame with a DLC above 1 (EMCY 0x8240); the SYNC is not processed."""

@@ -11,7 +11,10 @@ Lock-step (default; deterministic, faster than real time): on every SYNC frame, 
 3. ``plant.read_sensors()`` is sampled: the state at the SYNC instant (torque actual = torque applied
    from now on);
 4. every node sends its synchronous TPDOs;
-5. ``plant.step(cycle_time)`` advances the physics by one cycle.
+5. ``plant.step(cycle_time)`` advances the physics by one cycle. A plant that steps in the background
+   (``steps_in_background``, :class:`qomni.hil.device.plant_process.PlantProcess`) is told to step right
+   after step 3, so that its physics runs while the TPDOs go out; the plant sees the same calls in the
+   same order.
 
 The physics advances only on SYNC, so N SYNCs are exactly N·T_s of plant time, whatever the wall clock.
 
@@ -147,14 +150,17 @@ class DeviceListener(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
-        can_id = msg.arbitration_id
+        self.on_frame(msg.arbitration_id, msg.data, msg.timestamp)
+
+    def on_frame(self, can_id: int, data, timestamp: float) -> None:
+        """An 11-bit data frame, given as its values (the in-process bus's frame lane)."""
         try:
-            self.network.notify(can_id, msg.data, msg.timestamp)
+            self.network.notify(can_id, data, timestamp)
         except Exception:                                 # noqa: BLE001 - one frame must not silence the bus
             # An exception here would end the notifier thread, and with it every node's reception: a
             # real drive that cannot handle a frame drops it and keeps serving the others.
             self.internal_errors += 1
-            logger.exception("frame 0x%03X %s raised inside a node; dropped", can_id, bytes(msg.data).hex())
+            logger.exception("frame 0x%03X %s raised inside a node; dropped", can_id, bytes(data).hex())
         if self.after_command is not None and (can_id == 0 or 0x600 < can_id < 0x680):
             self.after_command()                   # NMT command or SDO request: may have disabled a drive
 
@@ -224,6 +230,7 @@ class VehicleServer:
         self._stop_event = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._torque = np.zeros(4)
+        self._background_physics = bool(getattr(plant, "steps_in_background", False))
         self._collector = QuietCollector()
 
     # --------------------------------------------------------- lifecycle
@@ -328,6 +335,9 @@ class VehicleServer:
             torque[i] = drive.applied_torque_nm
         self.plant.set_motor_torques(torque.copy())
         reading = self.plant.read_sensors()
+        step_now = not self.realtime and self._background_physics
+        if step_now:                               # the physics runs while the TPDOs go out
+            self.plant.step(self.cycle_time)
         position = reading.motor_position.tolist()
         velocity = reading.motor_velocity.tolist()
         measured = reading.motor_torque.tolist()
@@ -341,10 +351,10 @@ class VehicleServer:
                 node.sync_transmit()
         sent = time.time()
         self.cycles += 1
-        if not self.realtime:
-            self.plant.step(self.cycle_time)
-        else:
+        if self.realtime:
             self._run_due_ticks()
+        elif not step_now:
+            self.plant.step(self.cycle_time)
         return sent
 
     def _run_due_ticks(self) -> None:

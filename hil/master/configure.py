@@ -37,6 +37,15 @@ class RecordingNetwork(canopen.Network):
     def send_message(self, can_id: int, data, remote: bool = False) -> None:
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")
+        send_frame = getattr(self.bus, "send_frame", None)      # the in-process bus's frame lane
+        if send_frame is not None and can_id <= 0x7FF and not remote and len(data) <= 8:
+            data = bytes(data)
+            if self.recorder is not None:
+                self.recorder.on_transmit_frame(can_id, data)
+            with self.send_lock:
+                send_frame(can_id, data)
+            self.check()
+            return
         msg = data_frame(can_id, data) if can_id <= 0x7FF and not remote and len(data) <= 8 else \
             can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF, is_remote_frame=remote)
         if self.recorder is not None:          # before sending: an in-process bus may deliver the
@@ -136,6 +145,8 @@ class ClientConfiguration:
                                    "says %d bits", node.id, units, self.steering_sensor_bits)
         self._per_mille_per_nm = 1000.0 / self.rated_torque
         self._max_per_mille = np.minimum(np.rint(self.max_torque * self._per_mille_per_nm), 32767)
+        self._per_mille_scale = self._per_mille_per_nm.tolist()
+        self._per_mille_limit = self._max_per_mille.tolist()
         self._plan_cycle()
 
     def _plan_cycle(self) -> None:

@@ -42,6 +42,9 @@ logger = logging.getLogger(__name__)
 #: A frame in a batch: (timestamp [s], arbitration ID, DLC, data bytes, the can.Message flags below).
 _FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_rx", "is_fd", "bitrate_switch",
           "error_state_indicator")
+#: The flags of an 11-bit data frame, received and transmitted, in _FLAGS order.
+_RX_DATA_FRAME = (False, False, False, True, False, False, False)
+_TX_DATA_FRAME = (False, False, False, False, False, False, False)
 #: Frames per batch handed to the writer process, and the age [s] after which a batch goes anyway.
 BATCH_FRAMES = 512
 BATCH_AGE = 0.1
@@ -100,9 +103,20 @@ class BusRecorder(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         """Record a received frame (called by the notifier thread). Never raises: a recorder whose
         writer process is gone counts the frames it cannot hand over in ``errors`` and logs once."""
-        frame = (msg.timestamp, msg.arbitration_id, msg.dlc, bytes(msg.data or b""),
-                 (msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame, msg.is_rx, msg.is_fd,
-                  msg.bitrate_switch, msg.error_state_indicator))                  # in _FLAGS order
+        self._record((msg.timestamp, msg.arbitration_id, msg.dlc, bytes(msg.data or b""),
+                      (msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame, msg.is_rx, msg.is_fd,
+                       msg.bitrate_switch, msg.error_state_indicator)))            # in _FLAGS order
+
+    def on_frame(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """Record a received 11-bit data frame given as its values (the in-process bus's frame lane,
+        :mod:`qomni.hil.virtual_bus`); the same record as :meth:`on_message_received` of its message."""
+        self._record((timestamp, can_id, len(data), bytes(data), _RX_DATA_FRAME))
+
+    def on_transmit_frame(self, can_id: int, data: bytes) -> None:
+        """Record an 11-bit data frame this master sends, given as its values; stamped now."""
+        self._record((time.time(), can_id, len(data), bytes(data), _TX_DATA_FRAME))
+
+    def _record(self, frame: tuple) -> None:
         with self._lock:
             if not self._open:
                 return

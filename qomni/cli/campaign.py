@@ -16,7 +16,7 @@ from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICA
                                 read_json)
 
 from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
-                      vehicle_link)
+                      PLANT_PROCESS_HELP, vehicle_link)
 
 ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
                   "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
@@ -48,6 +48,7 @@ def campaign(
         help="Run the lifted single-axis identification of B_w first (default: yes with the embedded "
              "emulator; with --bus the vehicle must be lifted, so run 'qomni single-axis' instead)."),
     gui: bool = typer.Option(False, help="Show the PyBullet GUI (needs a display)."),
+    plant_process: bool = typer.Option(False, help=PLANT_PROCESS_HELP),
     faults: Optional[Path] = typer.Option(
         None, help="Fault plan (TOML, hil/device/faults.py) injected into the embedded emulator during the "
                    "campaign (not the single-axis run); for an external emulator use 'qomni emulate "
@@ -82,6 +83,8 @@ def campaign(
     check_bus_spec(bus)
     if single_axis is None:
         single_axis = bus is None
+    if plant_process and bus is not None:
+        fail("--plant-process applies to the embedded emulator; a vehicle on --bus runs its own physics")
     if effects is not None and bus is not None:
         fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
     effect_set = load_effects(effects)
@@ -105,7 +108,7 @@ def campaign(
                   markup=False)
     try:
         with vehicle_link(bus, vehicle, sheet, seed, False, gui, out / BUS_BLF, effect_set,
-                           faults=fault_plan) as link:
+                           faults=fault_plan, plant_process=plant_process) as link:
             run_with_progress("campaign", lambda cb: (setattr(run, "on_progress", cb), run.run(link)))
     except CampaignAborted as exc:
         fail(f"campaign aborted, the wheels were stopped; recorded data kept in {out}: {exc}")

@@ -4,6 +4,7 @@ The work is done in ``qomni.hil``; these commands wire it to the emulator (compo
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -43,6 +44,9 @@ def emulate(
                                        "(keep the master on others)."),
     rt_priority: Optional[int] = typer.Option(None, help="Run under SCHED_FIFO at this priority (1-99; "
                                               "needs root or CAP_SYS_NICE, else a note and normal priority)."),
+    plant_process: bool = typer.Option(False, help="Run the physics in a process of its own (it inherits "
+                                       "--cpus and --rt-priority): the bus side is never held up by a "
+                                       "physics tick (docs/hil.md)."),
 ):
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
     from qomni.emulator.vehicle import Emulator
@@ -70,7 +74,13 @@ def emulate(
     plan = load_faults(faults)
     description = load_description(vehicle)
     kwargs = {} if effects is None else {"effects": load_effects(effects)}
-    emulator = Emulator(description, seed=seed, lifted=lifted, **kwargs)
+    factory = functools.partial(Emulator, description, seed=seed, lifted=lifted, **kwargs)
+    if plant_process:
+        from qomni.hil.device.plant_process import PlantProcess
+
+        emulator = PlantProcess(factory)
+    else:
+        emulator = factory()
     server = VehicleServer(emulator, bus, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
                            faults=plan)
     try:

@@ -54,19 +54,23 @@ def load_faults(path: Optional[Path]):
 
 
 def vehicle_link(bus: Optional[str], vehicle: Optional[Path], sheet, seed: int, lifted: bool,
-                  gui: bool, record: Path, effects=None, faults=None):
-    """Context manager yielding a connected client: embedded emulator or the vehicle on ``bus``."""
+                  gui: bool, record: Path, effects=None, faults=None, plant_process: bool = False):
+    """Context manager yielding a connected client: embedded emulator (``plant_process``: its physics in
+    a process of its own) or the vehicle on ``bus``."""
     record = [record, record.with_suffix(".log")]         # BLF and candump -L
     if bus is None:
         from qomni.embedded import embedded_vehicle
 
         return embedded_vehicle(load_description(vehicle), seed=seed, lifted=lifted, gui=gui, record=record,
-                                effects=effects,
-                                faults=faults)
+                                effects=effects, faults=faults, plant_process=plant_process)
     from qomni.hil.master.client import VehicleClient
 
     return VehicleClient.from_drive(sheet.drive, bus, record=record)
 
+
+PLANT_PROCESS_HELP = ("Run the embedded emulator's physics in a process of its own, overlapped with the "
+                      "CANopen stack (same frames and data bit for bit; pays where a core is free, see "
+                      "docs/hil.md).")
 
 
 def check_bus_spec(bus: Optional[str]) -> None:
