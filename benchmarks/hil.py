@@ -9,6 +9,8 @@ Measured in the same run, each against a baseline measured alongside:
    against the same master and hub with an echo responder (python-can's socketcand client, like the
    emulator) that answers each SYNC with the same 10 frames and does nothing else: the floor of Python
    + loopback TCP on this machine. ``--pin 0:1`` pins hub + master and the device to CPU lists;
+   ``--busy-poll S`` makes hub, device and master poll their sockets for up to S s before blocking
+   (:mod:`qomni.hil.busy_poll`);
    The emulator runs twice: physics in the bus' process, and in a process of its own (``--plant-process``);
 2. the lock-step CANopen cycle against the bare PyBullet physics of a cycle, and the lock-step campaign
    (quick or full) against real time, each with the emulator in the bus' process and in its own;
@@ -22,7 +24,6 @@ import importlib.util
 import json
 import logging
 import os
-import select
 import signal
 import socket
 import subprocess
@@ -36,6 +37,7 @@ import can
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from qomni.hil.busy_poll import poll_select  # noqa: E402
 from qomni.hil.tools.busload import bus_load  # noqa: E402
 from qomni.hil.tools.hub import LOOPBACK, hub_bus_spec  # noqa: E402
 from qomni.hil.device.server import TimingStats  # noqa: E402
@@ -61,11 +63,11 @@ def lockstep_campaign(quick: bool, plant_process: bool = False) -> tuple[float, 
 
 
 # ------------------------------------------------------------------ real-time master and echo responder
-def echo_responder(bus_spec: str, stats_path: str) -> None:
+def echo_responder(bus_spec: str, stats_path: str, busy: float = 0.0) -> None:
     """Baseline device: answer every SYNC with the emulator's 10 TPDO frames at once; SIGINT ends it."""
     from qomni.hil.bus import open_bus
 
-    bus = open_bus(bus_spec)
+    bus = open_bus(bus_spec, busy_poll=busy)
     stats = TimingStats(T_S, T_S / 2)
     frames = [can.Message(arbitration_id=i, data=bytes(6 if i < 0x185 or i >= 0x281 else 4),
                           is_extended_id=False) for i in sorted(TPDO_IDS)]
@@ -86,7 +88,7 @@ def echo_responder(bus_spec: str, stats_path: str) -> None:
         Path(stats_path).write_text(json.dumps(stats.summary()))
 
 
-def raw_master(port: int, duration: float, out: str) -> None:
+def raw_master(port: int, duration: float, out: str, busy: float = 0.0) -> None:
     """The real-timed master as its own lean process: one thread, one TCP connection to the hub speaking
     socketcand directly (no python-can client, no receive thread). NMT reset communication + start, then
     every T_s at absolute monotonic deadlines one write of 4 RPDOs + SYNC; between deadlines it reads the
@@ -131,7 +133,7 @@ def raw_master(port: int, duration: float, out: str) -> None:
             wait = due - time.monotonic()
             if wait <= 0:
                 break
-            if select.select([sock], [], [], wait)[0]:
+            if poll_select([sock], wait, busy):
                 try:
                     buffer.extend(sock.recv(65536))
                 except BlockingIOError:
@@ -252,29 +254,31 @@ def _stop(process: subprocess.Popen) -> None:
         process.communicate()
 
 
-def realtime_run(device: str, duration: float, pin: tuple[str, str] | None) -> tuple[dict, dict]:
+def realtime_run(device: str, duration: float, pin: tuple[str, str] | None,
+                 busy: float = 0.0) -> tuple[dict, dict]:
     """(device stats, master's view) of one real-time run against ``device`` ('emulator',
     'emulator-process' (its physics in a process of its own) or 'echo'): the
     hub, the device and the master each a process of its own (``pin``: CPU lists of hub + master and
     of the device)."""
     master_cpus, device_cpus = pin or (None, None)
-    hub, line = _start([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0"], "hub listening",
-                       master_cpus)
+    hub, line = _start([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0", "--busy-poll", str(busy)],
+                       "hub listening", master_cpus)
     port = int(line.split(f"{LOOPBACK}:")[1].split(";")[0])
     spec = hub_bus_spec(port)
+    poll = ["--busy-poll", str(busy)] if busy else []
     with tempfile.TemporaryDirectory() as tmp:
         stats_path, master_path = Path(tmp) / "stats.json", Path(tmp) / "master.json"
         if device.startswith("emulator"):
             cmd = [*QOMNI, "emulate", "--realtime", "--bus", spec, "--stats", str(stats_path),
                    "--sync-timeout", "1.0"] + (["--cpus", device_cpus] if device_cpus else []) \
-                + (["--plant-process"] if device == "emulator-process" else [])
+                + (["--plant-process"] if device == "emulator-process" else []) + poll
         else:
-            cmd = [sys.executable, __file__, "--echo", spec, "--stats", str(stats_path)]
+            cmd = [sys.executable, __file__, "--echo", spec, "--stats", str(stats_path)] + poll
         try:
             process, _ = _start(cmd, "emulating", None if device.startswith("emulator") else device_cpus)
             try:
                 master = [sys.executable, __file__, "--master", str(port), "--duration", str(duration),
-                          "--stats", str(master_path)]
+                          "--stats", str(master_path)] + poll
                 subprocess.run(["taskset", "-c", master_cpus, *master] if master_cpus else master,
                                check=True, cwd=ROOT, preexec_fn=_interruptible)
             finally:
@@ -303,16 +307,20 @@ def main() -> None:
                         help="pin hub + master and the device to CPU lists, e.g. 0:1 or 2,3:4,5")
     parser.add_argument("--rt-priority", type=int, metavar="N",
                         help="run hub, master and device under SCHED_FIFO at priority N (root or CAP_SYS_NICE)")
+    parser.add_argument("--realtime-only", action="store_true",
+                        help="only the real-time runs (no bus load, hub ping, lock-step or campaign)")
+    parser.add_argument("--busy-poll", type=float, default=0.0, metavar="S",
+                        help="hub, device and master poll their sockets for up to S s before blocking")
     parser.add_argument("--echo", metavar="SPEC", help=argparse.SUPPRESS)
     parser.add_argument("--master", metavar="PORT", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     parser.add_argument("--stats", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
-        echo_responder(args.echo, args.stats)
+        echo_responder(args.echo, args.stats, args.busy_poll)
         return
     if args.master:
-        raw_master(args.master, args.duration, args.stats)
+        raw_master(args.master, args.duration, args.stats, args.busy_poll)
         return
     pin = tuple(args.pin.split(":")) if args.pin else None
     global RT_PRIORITY
@@ -337,11 +345,13 @@ def main() -> None:
     print(f"\nhub: a frame from one client to another {hub_time * 1e6:.0f} µs one way "
           f"(direct loopback TCP, baseline: {direct * 1e6:.0f} µs; the hub adds {(hub_time - direct) * 1e6:.0f} µs)")
 
-    echo, echo_master = realtime_run("echo", duration, pin)
-    emu, emu_master = realtime_run("emulator", duration, pin)
-    emp, emp_master = realtime_run("emulator-process", duration, pin)
+    busy = args.busy_poll
+    echo, echo_master = realtime_run("echo", duration, pin, busy)
+    emu, emu_master = realtime_run("emulator", duration, pin, busy)
+    emp, emp_master = realtime_run("emulator-process", duration, pin, busy)
     print(f"\nreal time, {duration:g} s at {1 / T_S:g} Hz; hub, master and device each a process"
           + (f" (hub + master on CPU {pin[0]}, device on CPU {pin[1]})" if pin else "")
+          + (f"; sockets polled for up to {busy * 1e3:g} ms before blocking" if busy else "")
           + "; ratios against the echo floor")
     print(f"  {'':36s} {'echo (baseline)':>16s} {'emulator':>16s} {'ratio':>8s} {'plant process':>16s} "
           f"{'ratio':>8s}")
@@ -362,6 +372,8 @@ def main() -> None:
               f"{_pct(emu['physics_late'] / emu['physics_ticks']):>16s} {'':8s} "
               f"{_pct(emp['physics_late'] / max(1, emp['physics_ticks'])):>16s}")
 
+    if args.realtime_only:
+        return
     bench = _bench_run_module()
     from qomni.emulator.description import VehicleDescription
 

@@ -21,6 +21,7 @@ import can
 from can.interfaces.socketcand.socketcand import (SocketCanDaemonBus,
                                                  convert_can_message_to_ascii_message)
 
+from .busy_poll import check_busy, poll_first
 from .virtual_bus import InlineVirtualBus
 
 DEFAULT_VIRTUAL_CHANNEL = "qomni"
@@ -92,17 +93,22 @@ def _socketcand_spec(where: str, bitrate: int | None, spec: str) -> BusSpec:
     return BusSpec("socketcand", match.group("channel"), bitrate, host, port)
 
 
-def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
+def open_bus(spec: str | BusSpec, *, busy_poll: float = 0.0, **kwargs) -> can.BusABC:
     """Open the python-can bus described by ``spec``; ``kwargs`` go to ``can.Bus`` unchanged.
 
     ``virtual`` opens a :class:`qomni.hil.virtual_bus.InlineVirtualBus` (a python-can ``virtual`` bus,
     peer of every other ``virtual`` bus of the process on the channel, that can deliver inline).
+    ``busy_poll`` [s] (socketcand only): each receive polls that long before it blocks
+    (:mod:`qomni.hil.busy_poll`).
 
     Raises:
-        ValueError: bad spec (see :func:`parse_bus_spec`).
+        ValueError: bad spec (see :func:`parse_bus_spec`), or ``busy_poll`` on another interface.
         can.CanError: the interface could not be opened (driver missing, no such device).
     """
     parsed = spec if isinstance(spec, BusSpec) else parse_bus_spec(spec)
+    if check_busy(busy_poll) > 0.0 and parsed.host is None:
+        raise ValueError(f"bus spec {spec!r}: busy polling applies to socketcand (a qomni hub), not to "
+                         f"'{parsed.interface}'")
     if parsed.bitrate is not None:
         kwargs.setdefault("bitrate", parsed.bitrate)
     if parsed.host is not None:
@@ -110,7 +116,7 @@ def open_bus(spec: str | BusSpec, **kwargs) -> can.BusABC:
         kwargs.setdefault("host", parsed.host)
         kwargs.setdefault("port", parsed.port)
         kwargs.setdefault("tcp_tune", True)
-        return BatchingSocketcandBus(channel=parsed.channel, **kwargs)
+        return BatchingSocketcandBus(channel=parsed.channel, busy_poll=busy_poll, **kwargs)
     if parsed.interface == "virtual":
         return InlineVirtualBus(channel=parsed.channel, **kwargs)
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
@@ -120,11 +126,20 @@ class BatchingSocketcandBus(SocketCanDaemonBus):
     """python-can's ``socketcand`` client that can hand several frames to TCP in one write: inside
     :meth:`batch`, the frames one thread sends are collected and written together when the block ends (a
     device's TPDOs of one SYNC: one segment, one wake-up of the hub and of the master, not ten).
-    Frames other threads send meanwhile go out at once, as always."""
+    Frames other threads send meanwhile go out at once, as always. ``busy_poll`` [s]: a receive polls the
+    socket that long before it blocks (:mod:`qomni.hil.busy_poll`; default 0, block at once)."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, busy_poll: float = 0.0, **kwargs):
         self._batches = threading.local()
+        self._busy_poll = check_busy(busy_poll)
         super().__init__(*args, **kwargs)
+
+    def _recv_internal(self, timeout):
+        """python-can's receive, polling the socket for up to ``busy_poll`` s before it blocks
+        (:mod:`qomni.hil.busy_poll`)."""
+        if self._busy_poll <= 0.0:
+            return super()._recv_internal(timeout)
+        return poll_first(super()._recv_internal, timeout, self._busy_poll, lambda got: got[0] is not None)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         pending = getattr(self._batches, "pending", None)

@@ -48,6 +48,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+from ..busy_poll import PollingSelector, check_busy
 from .socketcand_text import FAST_SEND, REMOTE, parse_send as _parse_send, stamp as frame_stamp
 
 logger = logging.getLogger(__name__)
@@ -152,18 +153,23 @@ class Hub:
             ``recv`` would break its handshake.
         open_timeout: s a connection may take to open a channel; one that has not is closed, so idle
             connections cannot hold the hub's places.
+        busy_poll: s the event loop polls its sockets before it blocks (:mod:`qomni.hil.busy_poll`;
+            0: block at once).
     Attributes:
         frames: frames accepted from clients so far.
         dropped: frames not delivered to some client because its queue was full.
         remote_dropped: remote (RTR) requests not forwarded: socketcand's ``< frame >`` has no RTR flag, and
             the CANopen devices here answer none (CiA 301 advises against RTR).
     Raises:
-        ValueError: non-loopback host, port out of range, ``max_clients`` < 1 or ``max_buffer`` < 256.
+        ValueError: non-loopback host, port out of range, ``max_clients`` < 1, ``max_buffer`` < 256, or
+            ``busy_poll`` negative or not finite.
     """
 
     def __init__(self, port: int = 0, host: str = LOOPBACK, *, max_clients: int = 16,
-                 max_buffer: int = 1 << 20, handshake_grace: float = 0.05, open_timeout: float = 5.0):
+                 max_buffer: int = 1 << 20, handshake_grace: float = 0.05, open_timeout: float = 5.0,
+                 busy_poll: float = 0.0):
         self._host = _check_host(host)
+        self.busy_poll = check_busy(busy_poll)
         self._requested_port = _check_port(port, allow_zero=True)
         if max_clients < 1 or max_buffer < _MAX_ELEMENT:
             raise ValueError(f"max_clients must be >= 1 and max_buffer >= {_MAX_ELEMENT} bytes")
@@ -215,7 +221,8 @@ class Hub:
         """
         if self._thread is not None:
             raise RuntimeError("hub already started")
-        loop = asyncio.new_event_loop()
+        loop = asyncio.SelectorEventLoop(PollingSelector(self.busy_poll)) if self.busy_poll > 0 \
+            else asyncio.new_event_loop()
         try:
             self._server = loop.run_until_complete(asyncio.start_server(
                 self._serve, self._host, self._requested_port, family=socket.AF_INET))
@@ -439,9 +446,11 @@ def main(argv: list[str] | None = None) -> None:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--port", type=int, default=29536, help="TCP port on 127.0.0.1 (0: any free port)")
     parser.add_argument("--max-clients", type=int, default=16)
+    parser.add_argument("--busy-poll", type=float, default=0.0, metavar="S",
+                        help="poll the sockets for up to S seconds before blocking (qomni.hil.busy_poll)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    hub = Hub(args.port, max_clients=args.max_clients).start()
+    hub = Hub(args.port, max_clients=args.max_clients, busy_poll=args.busy_poll).start()
     print(f"hub listening on {LOOPBACK}:{hub.port}; python-can: can.Bus(interface='socketcand', "
           f"host='{LOOPBACK}', port={hub.port}, channel='{DEFAULT_CHANNEL}')", flush=True)
     try:

@@ -19,6 +19,10 @@ from .console import console, fail
 from .loaders import load_description, load_effects, load_faults, prepare_out
 
 
+BUSY_POLL_HELP = ("s each socket wait polls before it blocks (0: block at once). Against the wake-up "
+                  "latency of a virtual machine's idle CPUs; costs a busy core (docs/hil.md).")
+
+
 @app.command()
 def emulate(
     bus: str = typer.Option(..., help="Bus to serve the vehicle on: 'socketcan:vcan0', "
@@ -47,10 +51,11 @@ def emulate(
     plant_process: bool = typer.Option(False, help="Run the physics in a process of its own (it inherits "
                                        "--cpus and --rt-priority): the bus side is never held up by a "
                                        "physics tick (docs/hil.md)."),
+    busy_poll: float = typer.Option(0.0, help=BUSY_POLL_HELP + " socketcand buses only."),
 ):
     """Serve the emulated vehicle (4 CiA 402 drives, 2 CiA 406 encoders) to an external CANopen master."""
     from qomni.emulator.vehicle import Emulator
-    from qomni.hil.bus import parse_bus_spec
+    from qomni.hil.bus import open_bus, parse_bus_spec
     from qomni.hil.device.server import VehicleServer
 
     try:
@@ -60,6 +65,11 @@ def emulate(
     for name, value in (("--duration", duration), ("--deadline", deadline), ("--sync-timeout", sync_timeout)):
         if value is not None and not (value > 0 and math.isfinite(value)):
             fail(f"{name} must be a positive number of seconds, got {value}")
+    if busy_poll:
+        if not (math.isfinite(busy_poll) and busy_poll > 0):
+            fail(f"--busy-poll must be a number of seconds ≥ 0, got {busy_poll}")
+        if parse_bus_spec(bus).host is None:
+            fail(f"--busy-poll applies to a socketcand bus (a qomni hub), not to {bus!r}")
     if stats is not None and not stats.parent.is_dir():
         fail(f"--stats {stats}: the directory {stats.parent} does not exist")
     from qomni.hil.device.realtime import RealtimeError, parse_cpus, pin_cpus, set_realtime_priority
@@ -81,7 +91,12 @@ def emulate(
         emulator = PlantProcess(factory)
     else:
         emulator = factory()
-    server = VehicleServer(emulator, bus, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
+    try:
+        bus_arg = open_bus(bus, busy_poll=busy_poll) if busy_poll else bus
+    except Exception as exc:                                        # noqa: BLE001 - say what and where
+        emulator.close()
+        fail(f"cannot open bus {bus!r}: {exc}")
+    server = VehicleServer(emulator, bus_arg, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
                            faults=plan)
     try:
         try:
@@ -102,6 +117,8 @@ def emulate(
     finally:
         server.stop()
         emulator.close()
+        if bus_arg is not bus:
+            bus_arg.shutdown()
     console.print(server.stats.report())
     if stats is not None:
         from qomni.ident.rundir import write_json
@@ -129,7 +146,8 @@ def emulate(
 
 @app.command()
 def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a free one)."),
-        max_clients: int = typer.Option(16, help="Most clients connected at once.")):
+        max_clients: int = typer.Option(16, help="Most clients connected at once."),
+        busy_poll: float = typer.Option(0.0, help=BUSY_POLL_HELP)):
     """Share one CAN bus between processes where vcan does not exist: a socketcand hub on 127.0.0.1.
 
     Connect with --bus socketcand:127.0.0.1:PORT/can0 (python-can's socketcand interface).
@@ -138,7 +156,9 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
 
     if not 0 <= port <= 65535 or max_clients < 1:
         fail(f"--port must be 0…65535 and --max-clients at least 1, got {port} and {max_clients}")
-    running = Hub(port=port, max_clients=max_clients)
+    if not (math.isfinite(busy_poll) and busy_poll >= 0):
+        fail(f"--busy-poll must be a number of seconds ≥ 0, got {busy_poll}")
+    running = Hub(port=port, max_clients=max_clients, busy_poll=busy_poll)
     try:
         running.start()
     except OSError as exc:
