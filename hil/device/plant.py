@@ -39,7 +39,12 @@ class SensorReading(Protocol):
 
 @runtime_checkable
 class Plant(Protocol):
-    """The physics behind the drives and encoders, stepped in lock-step with the SYNC."""
+    """The physics behind the drives and encoders, stepped in lock-step with the SYNC.
+
+    A plant whose ``step`` returns before the physics is done (it has ``steps_in_background = True``,
+    :class:`qomni.hil.device.plant_process.PlantProcess`) is told to step right after the sample, before
+    the TPDOs; any other plant after them.
+    """
 
     description: PlantDescription
 
