@@ -66,3 +66,38 @@ def test_emulate_refuses_bad_input(tmp_path):
     bad = subprocess.run([*QOMNI, "emulate", "--bus", "virtual",
                           "--faults", str(plan)], capture_output=True, text=True)
     assert bad.returncode == 2 and "rate must be in [0, 1]" in " ".join(bad.stdout.split())
+
+
+def test_emulate_with_its_physics_in_a_process_of_its_own_and_busy_polling():
+    """``qomni emulate --plant-process --busy-poll`` behind a busy-polling hub, lock-step: the same
+    measurements, bit for bit, as the embedded vehicle of the same seed driven with the same torques."""
+    from qomni.emulator.description import VehicleDescription
+    from qomni.embedded import embedded_vehicle
+
+    description = VehicleDescription.load()
+    torques = [np.array([0.4, -0.3, 0.6, 0.2]) * np.sin(k / 7) for k in range(100)]
+    with embedded_vehicle(description, seed=0) as client:
+        expected = [client.exchange(u) for u in torques]
+    with Hub(busy_poll=0.0005) as hub:
+        spec = hub_bus_spec(hub.port)
+        process = _serve(spec, "--duration", "8", "--sync-timeout", "2", "--plant-process",
+                         "--busy-poll", "0.0005")
+        try:
+            _wait_ready(process)
+            with VehicleClient.from_drive(description.drive, spec, timeout=2.0, boot_timeout=5.0) as client:
+                got = [client.exchange(u) for u in torques]
+            output = process.communicate(timeout=30)[0]
+        finally:
+            process.kill()
+    assert process.returncode == 0, output
+    for a, b in zip(got, expected):
+        for field in ("motor_position", "motor_velocity", "motor_torque", "alpha"):
+            assert getattr(a, field).tobytes() == getattr(b, field).tobytes(), field
+
+
+def test_busy_polling_is_refused_where_it_means_nothing():
+    bad = subprocess.run([*QOMNI, "emulate", "--bus", "virtual", "--busy-poll", "0.001"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "socketcand" in " ".join(bad.stdout.split())
+    bad = subprocess.run([*QOMNI, "hub", "--port", "0", "--busy-poll", "-1"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--busy-poll" in bad.stdout
