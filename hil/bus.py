@@ -122,6 +122,10 @@ def open_bus(spec: str | BusSpec, *, busy_poll: float = 0.0, **kwargs) -> can.Bu
     return can.Bus(interface=parsed.interface, channel=parsed.channel, **kwargs)
 
 
+#: A byte as python-can's socketcand client writes it (lower-case hex, no leading zero).
+_HEX = [f"{x:x}" for x in range(256)]
+
+
 class BatchingSocketcandBus(SocketCanDaemonBus):
     """python-can's ``socketcand`` client that can hand several frames to TCP in one write: inside
     :meth:`batch`, the frames one thread sends are collected and written together when the block ends (a
@@ -147,6 +151,17 @@ class BatchingSocketcandBus(SocketCanDaemonBus):
             super().send(msg, timeout)
         else:
             pending.append(convert_can_message_to_ascii_message(msg))
+
+    def send_frame(self, can_id: int, data: bytes) -> None:
+        """Send the 11-bit data frame ``can_id`` (≤ 0x7FF) with ``data`` (≤ 8 bytes) without a
+        :class:`can.Message`: the text python-can's client writes for it, formatted directly. For senders
+        whose frames are valid by construction; nothing is checked."""
+        text = f"< send {can_id:03X} {len(data):X} {' '.join(map(_HEX.__getitem__, data))} >"
+        pending = getattr(self._batches, "pending", None)
+        if pending is None:
+            self._tcp_send(text)
+        else:
+            pending.append(text)
 
     @contextlib.contextmanager
     def batch(self):

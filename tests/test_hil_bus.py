@@ -146,3 +146,26 @@ def test_frame_lane_delivers_what_a_message_would():
         network.disconnect()
         sender.shutdown()
         peer.shutdown()
+
+
+def test_socketcand_frame_lane_writes_what_python_can_writes():
+    """``BatchingSocketcandBus.send_frame`` formats a frame exactly as python-can's client formats the
+    same frame's message (socketcand ``< send … >``)."""
+    import can
+    from can.interfaces.socketcand.socketcand import convert_can_message_to_ascii_message
+
+    from qomni.hil.bus import BatchingSocketcandBus
+
+    written = []
+    bus = BatchingSocketcandBus.__new__(BatchingSocketcandBus)       # no connection: capture the text
+    bus._batches = __import__("threading").local()
+    bus._tcp_send = written.append
+    cases = [(0x181, bytes([0, 1, 0x0F, 0x10, 0xAB, 0xFF, 7, 8])), (0x80, b""), (0x7FF, b"\x00"), (0x1, b"\xff\x0a")]
+    for can_id, data in cases:
+        bus.send_frame(can_id, data)
+    assert written == [convert_can_message_to_ascii_message(
+        can.Message(arbitration_id=i, data=d, is_extended_id=False)) for i, d in cases]
+    with bus.batch():
+        bus.send_frame(0x181, b"\x01")
+        bus.send_frame(0x182, b"\x02")
+    assert written[-1] == "< send 181 1 1 >< send 182 1 2 >"
