@@ -121,3 +121,32 @@ def test_lockstep_server_posts_the_step_before_the_tpdos(description):
         assert a.time == b.time
         for field in ("motor_position", "motor_velocity", "motor_torque", "alpha"):
             assert getattr(a, field).tobytes() == getattr(b, field).tobytes(), field
+
+
+def test_calls_from_two_threads_are_served_one_at_a_time(description):
+    """A tool reading the truth while the server's thread steps: both get whole answers."""
+    import threading
+
+    with PlantProcess(functools.partial(Emulator, description, seed=2), spin=0.0) as plant:
+        stop, poses, errors = threading.Event(), [], []
+
+        def watch():
+            try:
+                while not stop.is_set():
+                    poses.append(plant.true_state().pose)
+            except Exception as exc:                  # noqa: BLE001 - reported below
+                errors.append(exc)
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            samples = _readings(plant, 300)
+        finally:
+            stop.set()
+            watcher.join(10.0)
+    assert not errors and len(poses) > 10 and not watcher.is_alive()
+    here = Emulator(description, seed=2)
+    try:
+        assert _readings(here, 300) == samples         # the other thread's calls change nothing
+    finally:
+        here.close()

@@ -13,7 +13,8 @@ server's three hot calls off any pipe:
 Commands and samples go through a shared block (``multiprocessing.RawArray``); a POSIX semaphore each way says "posted" and "done". The
 waiting side first polls the semaphore for ``spin`` seconds (no system call, no wake-up latency: worth a
 core on a many-core machine), then blocks on it. Every other attribute and method (``time``,
-``true_state()``, ``close()`` …) is a synchronous call over a pipe, after the step in flight.
+``true_state()``, ``close()`` …) is a synchronous call over a pipe, after the step in flight. Calls
+from several threads are served one at a time.
 
 The child makes exactly the calls, in exactly the order, that the server makes on an in-process plant,
 so a seeded lock-step run is bit-identical either way (``tests/test_plant_process.py`` against
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
 import time
 from typing import Any, Callable
 
@@ -168,6 +170,7 @@ class PlantProcess:
         self._cmd = self._f[_CMD]
         self._posted, self._done = ctx.Semaphore(0), ctx.Semaphore(0)
         self._conn, child_conn = ctx.Pipe()
+        self._lock = threading.Lock()            # one caller at a time: the protocol has one slot
         self._torque = np.zeros(4)
         self._has_torque = False
         self._busy = False
@@ -204,19 +207,22 @@ class PlantProcess:
         u = np.asarray(motor_torque, dtype=float)
         if u.shape != (4,) or not np.isfinite(u).all():
             raise ValueError(f"motor_torque must be 4 finite values, got {motor_torque!r}")
-        self._torque[:] = u
-        self._has_torque = True
+        with self._lock:
+            self._torque[:] = u
+            self._has_torque = True
 
     def step(self, duration: float) -> None:
         """Post a step of ``duration`` s and return; the next call waits for it."""
-        self._post(_STEP, duration)
+        with self._lock:
+            self._post(_STEP, duration)
 
     def read_sensors(self):
         """The plant's sample now (after the step in flight), as a reading with the
         :class:`~qomni.hil.device.plant.SensorReading` fields."""
-        self._post(_READ)
-        self._wait_done()
-        return _SampleReading(self._f[_SAMPLE_F], self._i[_SAMPLE_I])
+        with self._lock:
+            self._post(_READ)
+            self._wait_done()
+            return _SampleReading(self._f[_SAMPLE_F], self._i[_SAMPLE_I])
 
     # -- everything else ---------------------------------------------------------------------
     def __getattr__(self, name: str):
@@ -229,16 +235,17 @@ class PlantProcess:
 
     def close(self) -> None:
         """Close the plant (its ``close()`` if it has one) and end its process."""
-        if self._closed:
-            return
-        try:
-            if self._process.is_alive():
-                self._post(_CLOSE)
-                self._wait_done()
-        except Exception:                       # noqa: BLE001 - closing anyway
-            pass
-        finally:
-            self._teardown()
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                if self._process.is_alive():
+                    self._post(_CLOSE)
+                    self._wait_done()
+            except Exception:                   # noqa: BLE001 - closing anyway
+                pass
+            finally:
+                self._teardown()
 
     def __enter__(self) -> "PlantProcess":
         return self
@@ -274,10 +281,11 @@ class PlantProcess:
             raise exc
 
     def _call(self, kind: str, name: str, args: tuple = (), kwargs: dict | None = None):
-        self._post(_CALL)
-        self._conn.send((kind, name, args, kwargs or {}))
-        self._wait_done()
-        answer, value = self._conn.recv()
+        with self._lock:
+            self._post(_CALL)
+            self._conn.send((kind, name, args, kwargs or {}))
+            self._wait_done()
+            answer, value = self._conn.recv()
         return _METHOD if answer == "method" else value
 
     def _teardown(self) -> None:
