@@ -123,7 +123,7 @@ class Emulator:
     # -- construction -----------------------------------------------------------------------
     def _build(self) -> None:
         pb, d = self._pb, self.description
-        g, t, bd = d.geometry, d.truth, d.body
+        t, bd = d.truth, d.body
         # Box friction (rolling and axle directions clamped at μN each) instead of PyBullet's implicit
         # cone: with the cone a wheel sliding sideways also slips along its rolling direction, 15–40 mm/s
         # at 0.8 m/s for a 10–20 mrad toe, where Coulomb's cone gives ≈ 1 mm/s (docs/effects.md).

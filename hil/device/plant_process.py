@@ -10,11 +10,11 @@ server's three hot calls off any pipe:
   TPDOs, the master decodes them, computes and sends the next RPDOs and SYNC;
 * ``read_sensors()`` waits for the step in flight, then for the child's sample.
 
-Commands and samples go through a shared block (``multiprocessing.RawArray``); a POSIX semaphore each way says "posted" and "done". The
-waiting side first polls the semaphore for ``spin`` seconds (no system call, no wake-up latency: worth a
-core on a many-core machine), then blocks on it. Every other attribute and method (``time``,
-``true_state()``, ``close()`` …) is a synchronous call over a pipe, after the step in flight. Calls
-from several threads are served one at a time.
+Commands and samples go through a shared block (``multiprocessing.RawArray``); a POSIX semaphore each way
+says "posted" and "done". The waiting side first polls the semaphore for ``spin`` seconds (no system
+call, no wake-up latency: worth a core on a many-core machine), then blocks on it. Every other attribute
+and method (``time``, ``true_state()``, ``close()`` …) is a synchronous call over a pipe, after the step
+in flight. Calls from several threads are served one at a time.
 
 The child makes exactly the calls, in exactly the order, that the server makes on an in-process plant,
 so a seeded lock-step run is bit-identical either way (``tests/test_plant_process.py`` against
