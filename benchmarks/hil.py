@@ -10,8 +10,8 @@ Measured in the same run, each against a baseline measured alongside:
    emulator) that answers each SYNC with the same 10 frames and does nothing else: the floor of Python
    + loopback TCP on this machine. ``--pin 0:1`` pins hub + master and the device to CPU lists;
    ``--busy-poll S`` makes hub, device and master poll their sockets for up to S s before blocking
-   (:mod:`qomni.hil.busy_poll`);
-   The emulator runs twice: physics in the bus' process, and in a process of its own (``--plant-process``);
+   (:mod:`qomni.hil.busy_poll`). The emulator runs twice: physics in the bus' process, and in a process
+   of its own (``--plant-process``). ``--realtime-only`` stops after these runs;
 2. the lock-step CANopen cycle against the bare PyBullet physics of a cycle, and the lock-step campaign
    (quick or full) against real time, each with the emulator in the bus' process and in its own;
 3. bus load of the active mapping (shipped EDS files) at 1 Mbit/s and 500 kbit/s, worst-case bit
