@@ -29,10 +29,11 @@ from __future__ import annotations
 import multiprocessing
 import os
 import threading
-import time
 from typing import Any, Callable
 
 import numpy as np
+
+from ..busy_poll import poll_first
 
 #: Command codes in the shared command block.
 _STEP, _READ, _CALL, _CLOSE = 1, 2, 3, 4
@@ -59,13 +60,10 @@ def default_spin() -> float:
 
 
 def _wait(sem, spin: float, alive: Callable[[], bool], who: str) -> None:
-    """Acquire ``sem``: poll it for ``spin`` s, then block, checking ``alive()`` every _ALIVE_CHECK s."""
-    if spin > 0.0:
-        acquire, clock = sem.acquire, time.perf_counter
-        deadline = clock() + spin
-        while clock() < deadline:
-            if acquire(False):
-                return
+    """Acquire ``sem``: poll it for ``spin`` s, then block (:func:`qomni.hil.busy_poll.poll_first`),
+    checking ``alive()`` every _ALIVE_CHECK s."""
+    if poll_first(lambda timeout: sem.acquire(timeout > 0.0, timeout), _ALIVE_CHECK, spin, bool):
+        return
     while not sem.acquire(True, _ALIVE_CHECK):
         if not alive():
             raise PlantProcessError(f"{who} is gone")
