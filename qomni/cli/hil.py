@@ -23,6 +23,15 @@ BUSY_POLL_HELP = ("s each socket wait polls before it blocks (0: block at once).
                   "latency of a virtual machine's idle CPUs; costs a busy core (docs/hil.md).")
 
 
+def _check_busy_poll(busy_poll: float) -> None:
+    from qomni.hil.busy_poll import check_busy
+
+    try:
+        check_busy(busy_poll)
+    except ValueError as exc:
+        fail(f"--busy-poll: {exc}")
+
+
 @app.command()
 def emulate(
     bus: str = typer.Option(..., help="Bus to serve the vehicle on: 'socketcan:vcan0', "
@@ -65,11 +74,7 @@ def emulate(
     for name, value in (("--duration", duration), ("--deadline", deadline), ("--sync-timeout", sync_timeout)):
         if value is not None and not (value > 0 and math.isfinite(value)):
             fail(f"{name} must be a positive number of seconds, got {value}")
-    if busy_poll:
-        if not (math.isfinite(busy_poll) and busy_poll > 0):
-            fail(f"--busy-poll must be a number of seconds ≥ 0, got {busy_poll}")
-        if parse_bus_spec(bus).host is None:
-            fail(f"--busy-poll applies to a socketcand bus (a qomni hub), not to {bus!r}")
+    _check_busy_poll(busy_poll)
     if stats is not None and not stats.parent.is_dir():
         fail(f"--stats {stats}: the directory {stats.parent} does not exist")
     from qomni.hil.device.realtime import RealtimeError, parse_cpus, pin_cpus, set_realtime_priority
@@ -84,18 +89,22 @@ def emulate(
     plan = load_faults(faults)
     description = load_description(vehicle)
     kwargs = {} if effects is None else {"effects": load_effects(effects)}
-    factory = functools.partial(Emulator, description, seed=seed, lifted=lifted, **kwargs)
-    if plant_process:
-        from qomni.hil.device.plant_process import PlantProcess
-
-        emulator = PlantProcess(factory)
-    else:
-        emulator = factory()
     try:
-        bus_arg = open_bus(bus, busy_poll=busy_poll) if busy_poll else bus
+        bus_arg = open_bus(bus, busy_poll=busy_poll) if busy_poll else bus   # else the server opens it
     except Exception as exc:                                        # noqa: BLE001 - say what and where
-        emulator.close()
         fail(f"cannot open bus {bus!r}: {exc}")
+    factory = functools.partial(Emulator, description, seed=seed, lifted=lifted, **kwargs)
+    try:
+        if plant_process:
+            from qomni.hil.device.plant_process import PlantProcess
+
+            emulator = PlantProcess(factory)
+        else:
+            emulator = factory()
+    except BaseException:
+        if bus_arg is not bus:
+            bus_arg.shutdown()
+        raise
     server = VehicleServer(emulator, bus_arg, sync_timeout=sync_timeout, realtime=realtime, deadline=deadline,
                            faults=plan)
     try:
@@ -156,8 +165,7 @@ def hub(port: int = typer.Option(29536, help="TCP port on 127.0.0.1 (0 picks a f
 
     if not 0 <= port <= 65535 or max_clients < 1:
         fail(f"--port must be 0…65535 and --max-clients at least 1, got {port} and {max_clients}")
-    if not (math.isfinite(busy_poll) and busy_poll >= 0):
-        fail(f"--busy-poll must be a number of seconds ≥ 0, got {busy_poll}")
+    _check_busy_poll(busy_poll)
     running = Hub(port=port, max_clients=max_clients, busy_poll=busy_poll)
     try:
         running.start()
