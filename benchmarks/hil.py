@@ -190,9 +190,56 @@ def _ping_pong(a: socket.socket, b: socket.socket, send: bytes, rounds: int) -> 
     return times[len(times) // 2]
 
 
-def hub_forward(rounds: int = 2000) -> tuple[float, float]:
-    """(one-way frame time through the hub process, one-way time of the same bytes over a direct
-    loopback TCP connection) [s], medians of ping-pong round trips."""
+def bare_relay(port_file: str) -> None:
+    """Baseline for the hub: a process that accepts two loopback TCP connections and copies whatever one
+    sends to the other, verbatim (one blocking ``select`` loop, no parsing): the cost of a process in
+    the path (two wake-ups, two socket reads and writes), which any hub pays."""
+    import select
+
+    server = socket.create_server((LOOPBACK, 0))
+    Path(port_file).write_text(str(server.getsockname()[1]))
+    a, _ = server.accept()
+    b, _ = server.accept()
+    other = {a: b, b: a}
+    for sock in other:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    while True:
+        for sock in select.select([a, b], [], [])[0]:
+            data = sock.recv(65536)
+            if not data:
+                return
+            other[sock].sendall(data)
+
+
+def _relay_forward(rounds: int) -> float:
+    """One-way time [s] of a frame through :func:`bare_relay` in a process of its own."""
+    with tempfile.TemporaryDirectory() as tmp:
+        port_file = Path(tmp) / "port"
+        relay = subprocess.Popen([sys.executable, __file__, "--relay", str(port_file)], cwd=ROOT,
+                                 preexec_fn=_interruptible)
+        try:
+            deadline = time.monotonic() + 30
+            while not (port_file.exists() and port_file.read_text()):
+                if time.monotonic() > deadline or relay.poll() is not None:
+                    raise RuntimeError("the bare relay did not start")
+                time.sleep(0.01)
+            port = int(port_file.read_text())
+            a = socket.create_connection((LOOPBACK, port))
+            b = socket.create_connection((LOOPBACK, port))
+            for sock in (a, b):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            one_way = _ping_pong(a, b, b"< frame 181 1.000000 010203040506 >", rounds)
+            a.close()
+            b.close()
+        finally:
+            relay.kill()
+            relay.wait()
+    return one_way
+
+
+def hub_forward(rounds: int = 2000) -> tuple[float, float, float]:
+    """(one-way frame time through the hub process, through a bare relay process (:func:`bare_relay`),
+    over a direct loopback TCP connection in this process) [s], medians of ping-pong round trips."""
     hub, line = _start([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0"], "hub listening")
     try:
         port = int(line.split(f"{LOOPBACK}:")[1].split(";")[0])
@@ -211,7 +258,7 @@ def hub_forward(rounds: int = 2000) -> tuple[float, float]:
     direct = _ping_pong(a, b, b"< frame 181 1.000000 010203040506 >", rounds)
     for sock in (a, b, server):
         sock.close()
-    return through_hub, direct
+    return through_hub, _relay_forward(rounds), direct
 
 
 #: SCHED_FIFO priority of hub, master and device (``--rt-priority``), None: normal scheduling.
@@ -312,6 +359,7 @@ def main() -> None:
     parser.add_argument("--busy-poll", type=float, default=0.0, metavar="S",
                         help="hub, device and master poll their sockets for up to S s before blocking")
     parser.add_argument("--echo", metavar="SPEC", help=argparse.SUPPRESS)
+    parser.add_argument("--relay", metavar="PORT_FILE", help=argparse.SUPPRESS)
     parser.add_argument("--master", metavar="PORT", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     parser.add_argument("--stats", help=argparse.SUPPRESS)
@@ -321,6 +369,9 @@ def main() -> None:
         return
     if args.master:
         raw_master(args.master, args.duration, args.stats, args.busy_poll)
+        return
+    if args.relay:
+        bare_relay(args.relay)
         return
     pin = tuple(args.pin.split(":")) if args.pin else None
     global RT_PRIORITY
@@ -341,9 +392,10 @@ def main() -> None:
         print(f"  {rate / 1e3:6.0f} kbit/s: {result.bits_per_cycle:7.1f} bit per {T_S * 1e3:g} ms cycle "
               f"= {result.load:5.2f} × capacity ({len(result.frames)} message kinds)")
 
-    hub_time, direct = hub_forward()
-    print(f"\nhub: a frame from one client to another {hub_time * 1e6:.0f} µs one way "
-          f"(direct loopback TCP, baseline: {direct * 1e6:.0f} µs; the hub adds {(hub_time - direct) * 1e6:.0f} µs)")
+    hub_time, relay, direct = hub_forward()
+    print(f"\nhub: a frame from one client to another {hub_time * 1e6:.0f} µs one way; through a bare relay "
+          f"process (baseline) {relay * 1e6:.0f} µs, the hub adds {(hub_time - relay) * 1e6:.0f} µs "
+          f"= {hub_time / relay:.2f} ×; direct loopback TCP in one process {direct * 1e6:.0f} µs")
 
     busy = args.busy_poll
     echo, echo_master = realtime_run("echo", duration, pin, busy)

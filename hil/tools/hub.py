@@ -23,8 +23,10 @@ Protocol (socketcand, https://github.com/linux-can/socketcand ``doc/protocol.md`
   mode sends a frame; ``< bcmode >`` leaves raw mode; ``< echo >`` → ``< echo >``;
 * anything else → ``< error TEXT >`` (the connection stays open; an over-long element closes it).
 
-Hot path: the frames of one read from a client are forwarded to each other client in one write (a
-device's TPDOs of a SYNC, sent in one write, leave the hub in one write); a well-formed
+Hot path: each connection is an :class:`asyncio.Protocol` whose ``data_received`` parses the read at once
+(no stream reader, no task woken per read: one event-loop iteration per read); the frames of one read
+from a client are forwarded to each other client in one write (a device's TPDOs of a SYNC, sent in one
+write, leave the hub in one write); a well-formed
 ``< send ID LEN B… >`` with a standard ID is recognised by one regular expression, every other element
 goes through the full parser with its error answers.
 
@@ -122,7 +124,7 @@ def _check_channel(channel: str) -> str:
 
 @dataclass(eq=False)
 class _Client:
-    writer: asyncio.StreamWriter
+    transport: asyncio.Transport
     peer: str
     channel: str | None = None
     raw: bool = False
@@ -132,11 +134,93 @@ class _Client:
 
     def reply(self, text: bytes, limit: int) -> None:
         """Answer a command; a client that lets ``limit`` bytes of answers pile up is disconnected."""
-        if self.writer.transport.get_write_buffer_size() > limit:
+        if self.transport.get_write_buffer_size() > limit:
             logger.warning("hub: %s does not read its answers, closing", self.peer)
-            self.writer.transport.abort()
+            self.transport.abort()
         else:
-            self.writer.write(text)
+            self.transport.write(text)
+
+
+class _Connection(asyncio.Protocol):
+    """One client's connection: the hub's protocol on asyncio's transport callbacks. Each read is
+    parsed in ``data_received`` itself, without a stream reader and a task to wake for it."""
+
+    def __init__(self, hub: "Hub"):
+        self.hub = hub
+        self.client: _Client | None = None
+        self.buffer = b""
+        self.sock = None
+        self.quickack = 0
+        self.unopened: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:
+        hub = self.hub
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.sock, self.quickack = sock, getattr(socket, "TCP_QUICKACK", 0)
+        peer = "%s:%s" % transport.get_extra_info("peername")[:2]
+        if len(hub._clients) >= hub.max_clients:
+            logger.warning("hub: refusing %s, already %d clients", peer, len(hub._clients))
+            transport.write(b"< error too many clients >")
+            transport.close()
+            return
+        self.client = _Client(transport, peer)
+        hub._clients.add(self.client)
+        logger.debug("hub: %s connected", peer)
+        self.unopened = hub._loop.call_later(hub.open_timeout, hub._close_unopened, self.client)
+        transport.write(b"< hi >")
+
+    def data_received(self, chunk: bytes) -> None:
+        client = self.client
+        if client is None or client not in self.hub._clients:
+            return
+        if self.quickack:
+            # Acknowledge at once: python-can's client does not disable Nagle's algorithm, so its next
+            # small frame would wait for our (delayed, ~40 ms) acknowledgement.
+            try:
+                self.sock.setsockopt(socket.IPPROTO_TCP, self.quickack, 1)
+            except OSError:
+                pass
+        hub = self.hub
+        buffer = self.buffer + chunk if self.buffer else chunk
+        lines: list[bytes] = []                   # frames of this read, forwarded in one write per client
+        stamp = frame_stamp(time.time()).encode("ascii")
+        start = 0
+        while True:
+            end = buffer.find(b">", start)
+            if end < 0:
+                break
+            element, start = buffer[start:end + 1], end + 1
+            line = hub._fast_frame(client, element, stamp)
+            if line is not None:
+                lines.append(line)
+                continue
+            if lines:
+                hub._forward(client, lines)
+                lines = []
+            hub._handle(client, element)
+        self.buffer = buffer[start:]
+        if lines:
+            hub._forward(client, lines)
+        if len(self.buffer) > _MAX_ELEMENT:
+            client.transport.write(b"< error element too long >")
+            logger.warning("hub: %s sent an element over %d characters, closing", client.peer, _MAX_ELEMENT)
+            self._drop()
+            client.transport.close()
+
+    def eof_received(self) -> bool:
+        return False                              # close the connection
+
+    def connection_lost(self, exc) -> None:
+        self._drop()
+
+    def _drop(self) -> None:
+        if self.unopened is not None:
+            self.unopened.cancel()
+        if self.client is not None and self.client in self.hub._clients:
+            self.hub._clients.discard(self.client)
+            logger.debug("hub: %s disconnected", self.client.peer)
 
 
 class Hub:
@@ -224,8 +308,8 @@ class Hub:
         loop = asyncio.SelectorEventLoop(PollingSelector(self.busy_poll)) if self.busy_poll > 0 \
             else asyncio.new_event_loop()
         try:
-            self._server = loop.run_until_complete(asyncio.start_server(
-                self._serve, self._host, self._requested_port, family=socket.AF_INET))
+            self._server = loop.run_until_complete(loop.create_server(
+                lambda: _Connection(self), self._host, self._requested_port, family=socket.AF_INET))
         except BaseException:
             loop.close()
             raise
@@ -262,74 +346,15 @@ class Hub:
     async def _shutdown(self) -> None:
         self._server.close()
         for client in list(self._clients):
-            client.writer.transport.abort()           # do not wait for a stalled client to read
-        handlers = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
-        if handlers:
-            await asyncio.wait(handlers, timeout=1.0)
+            client.transport.abort()                  # do not wait for a stalled client to read
+        self._clients.clear()
+        await asyncio.sleep(0)                        # let the aborted connections' callbacks run
 
     # ------------------------------------------------------------ protocol
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        sock = writer.get_extra_info("socket")
-        quickack = getattr(socket, "TCP_QUICKACK", 0) if sock is not None else 0
-        if sock is not None:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        peer = "%s:%s" % writer.get_extra_info("peername")[:2]
-        if len(self._clients) >= self.max_clients:
-            logger.warning("hub: refusing %s, already %d clients", peer, len(self._clients))
-            writer.write(b"< error too many clients >")
-            writer.close()
-            return
-        client = _Client(writer, peer)
-        self._clients.add(client)
-        logger.debug("hub: %s connected", peer)
-        unopened = self._loop.call_later(self.open_timeout, self._close_unopened, client)
-        try:
-            writer.write(b"< hi >")
-            buffer = b""
-            while True:
-                chunk = await reader.read(4096)
-                if not chunk:
-                    break
-                if quickack:
-                    # Acknowledge at once: python-can's client does not disable Nagle's algorithm, so
-                    # its next small frame would wait for our (delayed, ~40 ms) acknowledgement.
-                    sock.setsockopt(socket.IPPROTO_TCP, quickack, 1)
-                buffer += chunk
-                lines: list[bytes] = []           # frames of this chunk, forwarded in one write per client
-                stamp = frame_stamp(time.time())
-                start = 0
-                while True:
-                    end = buffer.find(b">", start)
-                    if end < 0:
-                        break
-                    element, start = buffer[start:end + 1], end + 1
-                    line = self._fast_frame(client, element, stamp)
-                    if line is not None:
-                        lines.append(line)
-                        continue
-                    if lines:
-                        self._forward(client, lines)
-                        lines = []
-                    self._handle(client, element)
-                buffer = buffer[start:]
-                if lines:
-                    self._forward(client, lines)
-                if len(buffer) > _MAX_ELEMENT:
-                    writer.write(b"< error element too long >")
-                    logger.warning("hub: %s sent an element over %d characters, closing", peer, _MAX_ELEMENT)
-                    break
-        except (ConnectionError, OSError):
-            pass
-        finally:
-            unopened.cancel()
-            self._clients.discard(client)
-            writer.close()
-            logger.debug("hub: %s disconnected", peer)
-
     def _close_unopened(self, client: _Client) -> None:
         if client.channel is None and client in self._clients:
             logger.warning("hub: %s opened no channel within %g s, closing", client.peer, self.open_timeout)
-            client.writer.transport.abort()
+            client.transport.abort()
 
     def _handle(self, client: _Client, element: bytes) -> None:
         def reply(text: bytes) -> None:
@@ -390,9 +415,9 @@ class Hub:
     def _release(self, client: _Client) -> None:
         pending, client.pending = client.pending, None
         if pending and client.raw and client in self._clients:
-            client.writer.write(b"".join(pending))
+            client.transport.write(b"".join(pending))
 
-    def _fast_frame(self, sender: _Client, element: bytes, stamp: str) -> bytes | None:
+    def _fast_frame(self, sender: _Client, element: bytes, stamp: bytes) -> bytes | None:
         """The ``< frame … >`` line of a well-formed standard-ID data frame ``< send ID LEN B… >`` from a
         client with an open channel (the hot path: no decoding into words, no error texts); None for
         every other element, which :meth:`_handle` then answers."""
@@ -404,7 +429,7 @@ class Hub:
         if can_id > 0x7FF or len(data) != length:
             return None
         self.frames += 1
-        return f"< frame {can_id:03X} {stamp} {data.hex().upper()} >".encode("ascii")
+        return b"< frame %03X %b %b >" % (can_id, stamp, data.hex().upper().encode("ascii"))
 
     def _broadcast(self, sender: _Client, can_id: int, extended: bool, data: bytes) -> None:
         self.frames += 1
@@ -426,17 +451,17 @@ class Hub:
                         client.pending.append(line)
                         client.pending_bytes += len(line)
                 continue
-            room = self.max_buffer - client.writer.transport.get_write_buffer_size()
+            room = self.max_buffer - client.transport.get_write_buffer_size()
             if total <= room:
                 if joined is None:
                     joined = b"".join(lines)
-                client.writer.write(joined)
+                client.transport.write(joined)
                 continue
             for line in lines:
                 if len(line) > room:
                     self.dropped += 1
                 else:
-                    client.writer.write(line)
+                    client.transport.write(line)
                     room -= len(line)
 
 
