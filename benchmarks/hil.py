@@ -15,7 +15,9 @@ Measured in the same run, each against a baseline measured alongside:
 2. the lock-step CANopen cycle against the bare PyBullet physics of a cycle, and the lock-step campaign
    (quick or full) against real time, each with the emulator in the bus' process and in its own;
 3. bus load of the active mapping (shipped EDS files) at 1 Mbit/s and 500 kbit/s, worst-case bit
-   stuffing, against the bus capacity.
+   stuffing, against the bus capacity;
+4. a frame's one-way time through the hub process (ping-pong of two raw socketcand clients) against a
+   bare relay process that copies bytes between two sockets (:func:`bare_relay`).
 """
 from __future__ import annotations
 
