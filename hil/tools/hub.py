@@ -307,14 +307,15 @@ class Hub:
             raise RuntimeError("hub already started")
         loop = asyncio.SelectorEventLoop(PollingSelector(self.busy_poll)) if self.busy_poll > 0 \
             else asyncio.new_event_loop()
+        self._loop = loop                  # before the first connection can be accepted (its timers)
         try:
             self._server = loop.run_until_complete(loop.create_server(
                 lambda: _Connection(self), self._host, self._requested_port, family=socket.AF_INET))
         except BaseException:
+            self._loop = None
             loop.close()
             raise
         self._port = self._server.sockets[0].getsockname()[1]
-        self._loop = loop
         self._thread = threading.Thread(target=loop.run_forever, name=f"hil-hub-{self._port}", daemon=True)
         self._thread.start()
         logger.info("CAN hub (socketcand protocol) on %s:%d", self._host, self._port)
