@@ -192,14 +192,15 @@ def _ping_pong(a: socket.socket, b: socket.socket, send: bytes, rounds: int) -> 
     return times[len(times) // 2]
 
 
-def bare_relay(port_file: str) -> None:
+def bare_relay() -> None:
     """Baseline for the hub: a process that accepts two loopback TCP connections and copies whatever one
     sends to the other, verbatim (one blocking ``select`` loop, no parsing): the cost of a process in
-    the path (two wake-ups, two socket reads and writes), which any hub pays."""
+    the path (two wake-ups, two socket reads and writes), which any hub pays. Announces its port on
+    stdout as the hub does."""
     import select
 
     server = socket.create_server((LOOPBACK, 0))
-    Path(port_file).write_text(str(server.getsockname()[1]))
+    print(f"relay listening on {LOOPBACK}:{server.getsockname()[1]};", flush=True)
     a, _ = server.accept()
     b, _ = server.accept()
     other = {a: b, b: a}
@@ -213,29 +214,24 @@ def bare_relay(port_file: str) -> None:
             other[sock].sendall(data)
 
 
+def _listening_port(line: str) -> int:
+    """The port in a ``… listening on 127.0.0.1:PORT; …`` line of the hub or the relay."""
+    return int(line.split(f"{LOOPBACK}:")[1].split(";")[0])
+
+
 def _relay_forward(rounds: int) -> float:
     """One-way time [s] of a frame through :func:`bare_relay` in a process of its own."""
-    with tempfile.TemporaryDirectory() as tmp:
-        port_file = Path(tmp) / "port"
-        relay = subprocess.Popen([sys.executable, __file__, "--relay", str(port_file)], cwd=ROOT,
-                                 preexec_fn=_interruptible)
-        try:
-            deadline = time.monotonic() + 30
-            while not (port_file.exists() and port_file.read_text()):
-                if time.monotonic() > deadline or relay.poll() is not None:
-                    raise RuntimeError("the bare relay did not start")
-                time.sleep(0.01)
-            port = int(port_file.read_text())
-            a = socket.create_connection((LOOPBACK, port))
-            b = socket.create_connection((LOOPBACK, port))
-            for sock in (a, b):
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            one_way = _ping_pong(a, b, b"< frame 181 1.000000 010203040506 >", rounds)
-            a.close()
-            b.close()
-        finally:
-            relay.kill()
-            relay.wait()
+    relay, line = _start([sys.executable, __file__, "--relay"], "relay listening")
+    try:
+        a = socket.create_connection((LOOPBACK, _listening_port(line)))
+        b = socket.create_connection((LOOPBACK, _listening_port(line)))
+        for sock in (a, b):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        one_way = _ping_pong(a, b, b"< frame 181 1.000000 010203040506 >", rounds)
+        a.close()
+        b.close()
+    finally:
+        _stop(relay)
     return one_way
 
 
@@ -244,7 +240,7 @@ def hub_forward(rounds: int = 2000) -> tuple[float, float, float]:
     over a direct loopback TCP connection in this process) [s], medians of ping-pong round trips."""
     hub, line = _start([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0"], "hub listening")
     try:
-        port = int(line.split(f"{LOOPBACK}:")[1].split(";")[0])
+        port = _listening_port(line)
         a, b = _raw_client(port), _raw_client(port)
         time.sleep(0.1)                                       # the hub's raw-mode grace period
         through_hub = _ping_pong(a, b, b"< send 181 6 01 02 03 04 05 06 >", rounds)
@@ -312,7 +308,7 @@ def realtime_run(device: str, duration: float, pin: tuple[str, str] | None,
     master_cpus, device_cpus = pin or (None, None)
     hub, line = _start([sys.executable, "-m", "qomni.hil.tools.hub", "--port", "0", "--busy-poll", str(busy)],
                        "hub listening", master_cpus)
-    port = int(line.split(f"{LOOPBACK}:")[1].split(";")[0])
+    port = _listening_port(line)
     spec = hub_bus_spec(port)
     poll = ["--busy-poll", str(busy)] if busy else []
     with tempfile.TemporaryDirectory() as tmp:
@@ -361,7 +357,7 @@ def main() -> None:
     parser.add_argument("--busy-poll", type=float, default=0.0, metavar="S",
                         help="hub, device and master poll their sockets for up to S s before blocking")
     parser.add_argument("--echo", metavar="SPEC", help=argparse.SUPPRESS)
-    parser.add_argument("--relay", metavar="PORT_FILE", help=argparse.SUPPRESS)
+    parser.add_argument("--relay", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--master", metavar="PORT", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     parser.add_argument("--stats", help=argparse.SUPPRESS)
@@ -373,7 +369,7 @@ def main() -> None:
         raw_master(args.master, args.duration, args.stats, args.busy_poll)
         return
     if args.relay:
-        bare_relay(args.relay)
+        bare_relay()
         return
     pin = tuple(args.pin.split(":")) if args.pin else None
     global RT_PRIORITY
