@@ -46,6 +46,9 @@ from .problem import (Fit, MeasuredBase, Problem, cached_columns, counted_by_own
 from .simulate import simulate_channel
 
 MAX_EFFECTS = 3
+#: Two-sided z (10⁻³) within which a Stribeck fit's wheel-joint level agrees with the lifted breakaway
+#: test's excess (``_agrees_with_lifted``).
+LIFTED_AGREE_Z = 3.29
 #: Held-out shrinkage a channel's black-box extension must reach for "unexplained structure remains";
 #: its window-bootstrap interval must also exclude 0, as for a second named effect: six free coefficients
 #: fit a quick campaign's few windows more easily than one physical one (an ideal quick rotation gave
@@ -234,6 +237,82 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     sub, fit = max(passed, key=lambda f: f[0].evaluation.removed)
     sub.identifiability = fitting.collinearity(fp, sub.hypothesis, fit.nonlinear, cache)
     return sub, fit
+
+
+def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
+                               candidates, rows: RuleRows):
+    """(candidate, its own fit) of the Stribeck friction the lifted breakaway test measures where the
+    ground's data named none, or None.
+
+    The lifted wheels breaking away above their Coulomb friction (``stribeck.lifted_peak``) is the
+    wheel joints' low-speed peak measured directly, where nothing else resists; the tanh friction of the
+    model has none. Where the ground's gates named no Stribeck variant beside the other effects (its
+    rows are few and near the effects already named), the variant is fitted as the last effect, with the
+    accepted ones in the model, beyond its reference level: the both-joints variant where the lane change
+    places friction in the steering joints too (as in the placement), else the wheel variant. It is
+    named when that fit is physical and its level is there: by the presence test, or by the lifted
+    measurement itself where the fitted wheel-joint level agrees with it (``_agrees_with_lifted``). Its
+    held-out figures are reported as fitted, not required."""
+    from .hypotheses import stribeck
+
+    if not stribeck.lifted_peak(rows.lifted_breakaway) or len(accepted) >= MAX_EFFECTS \
+            or any(c.hypothesis.name == "stribeck" for c in accepted):
+        return None
+    by_variant = {h.variant: h for h in hypotheses if h.name == "stribeck"}
+    if "joints=wheels" not in by_variant:
+        return None
+    first = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
+    steered = stribeck.lane_change_steering_z(rows.steering, rows.steering_reference, model, lag, cache)
+    v_s = first["joints=steering"].fit.nonlinear if "joints=steering" in first else None
+    z_lc = None if steered is None or v_s is None else steered(v_s)
+    order = (["joints=both"] if z_lc is not None and z_lc >= stribeck.LANE_CHANGE_STEERING_Z
+             and "joints=both" in by_variant else []) + ["joints=wheels"]
+    base = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else None
+    excess, std = rows.lifted_breakaway
+    for variant in order:
+        h = by_variant[variant]
+        if accepted:
+            cand = _fit_last(fp, hp, model, lag, sheet, accepted_fits, h, base, cache, levels)
+            if cand is None:
+                continue
+            q = len(h.parameters)
+            theta, cov = cand.fit.theta[-q:], cand.fit.theta_cov[-q:, -q:]
+            cand = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
+                                     cand.p_value, cand.evaluation, {}, cand.physical, False, [],
+                                     cand.added_to_model, cand.from_model, cand.presence_p)
+            own = _tail_fit(h, cand.fit)
+        else:
+            cand = first.get(variant)
+            if cand is None:
+                continue
+            own = cand.fit
+        agrees = _agrees_with_lifted(cand, excess, std)
+        if not (cand.physical and (fitting.present(cand) or agrees)):
+            continue
+        cand.significant = True
+        cand.identifiability = fitting.collinearity(fp, h, cand.fit.nonlinear, cache)
+        theta_w = float(np.asarray(cand.fit.theta)[-len(h.parameters)])
+        cand.notes.append(f"named by the lifted breakaway test: the wheels break away at {1 + excess:.3f} × "
+                          f"their Coulomb friction (z = {excess / std:.0f}); the ground's fit puts the wheel "
+                          f"joints' excess at {theta_w:.3g}"
+                          + (", which agrees with it" if agrees else "")
+                          + (f", and the lane change places friction in the steering joints (z = {z_lc:.1f})"
+                             if variant == "joints=both" else "")
+                          + f"; the ground's data alone: p = {cand.p_value:.1e}, not a further effect's gate"
+                          + (" beside " + ", ".join(c.hypothesis.label for c in accepted) if accepted else ""))
+        return cand, own
+    return None
+
+
+def _agrees_with_lifted(cand, excess: float, std: float) -> bool:
+    """Whether a Stribeck fit's wheel-joint level (its first coefficient, breakaway/Coulomb − 1) agrees
+    with the lifted wheels' breakaway excess (``excess`` ± ``std``) within a two-sided z of 3.29 (10⁻³),
+    σ of the fit and of the measurement combined."""
+    theta = float(np.asarray(cand.fit.theta)[-len(cand.hypothesis.parameters)])
+    var = float(np.asarray(cand.fit.theta_cov)[-len(cand.hypothesis.parameters),
+                                               -len(cand.hypothesis.parameters)])
+    sigma = np.sqrt(max(var, 0.0) + std**2)
+    return bool(sigma > 0 and abs(theta - excess) <= LIFTED_AGREE_Z * sigma)
 
 
 def _fit_last(fp, hp, model, lag, sheet, fits: list[Fit], h: Hypothesis, base: Fit, cache, levels):
@@ -443,7 +522,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                                                         measured=measured)[0]
     rows = RuleRows(all_rows, ref_problem, model, lag, cache,
                     None if on_lifted_wheels is None else on_lifted_wheels.wheels,
-                    *_steering_rule_rows(steer, steer_ref, lag, prior, measured, ref_measured))
+                    *_steering_rule_rows(steer, steer_ref, lag, prior, measured, ref_measured),
+                    None if on_lifted_wheels is None else on_lifted_wheels.breakaway)
     for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
         resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
@@ -463,6 +543,11 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             accepted_fits.append(_tail_fit(cand.hypothesis, joint_fit))
         accepted, accepted_fits = _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache,
                                                   levels, hypotheses, floor)
+    lifted_friction = _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepted, cache,
+                                                 levels, hypotheses, candidates, rows)
+    if lifted_friction is not None:
+        accepted.append(lifted_friction[0])
+        accepted_fits.append(lifted_friction[1])
     where = where_.breakdown(chans, lag)
     structured = where_.structured(where)
     unexplained = []

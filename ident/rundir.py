@@ -213,9 +213,10 @@ def datasheet_from_metadata(meta: dict, source: str) -> DataSheet:
 
 
 def _measured(path: Path, data: dict, keys: tuple[str, ...], positive: bool,
-              with_std: bool = True) -> tuple[float, float | None]:
+              with_std: bool = True, signed: bool = False) -> tuple[float, float | None]:
     """``(value, std)`` of the measurement at ``keys`` in ``data`` (a JSON object read from ``path``): a
-    finite value, positive or non-negative, and (``with_std``) a positive, finite std; std None without.
+    finite value, positive or non-negative (any sign where ``signed``), and (``with_std``) a positive,
+    finite std; std None without.
 
     Raises:
         RunDirectoryError: missing, not a number or out of range; the message names the file and key."""
@@ -229,10 +230,10 @@ def _measured(path: Path, data: dict, keys: tuple[str, ...], positive: bool,
         std = float(node["std"]) if with_std else None
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirectoryError(f"{path}: {key}.{fields} missing or not a number: {exc}") from None
-    value_ok = math.isfinite(value) and (value > 0 if positive else value >= 0)
+    value_ok = math.isfinite(value) and (signed or (value > 0 if positive else value >= 0))
     if not (value_ok and (std is None or (math.isfinite(std) and std > 0))):
-        what = "positive" if positive else "non-negative"
-        raise RunDirectoryError(f"{path}: {key} must be a finite, {what} value"
+        what = "finite" if signed else "finite, positive" if positive else "finite, non-negative"
+        raise RunDirectoryError(f"{path}: {key} must be a {what} value"
                                 + (f" with a positive, finite std, got value {value}, std {std}" if with_std
                                    else f", got {value}"))
     return value, std
@@ -259,10 +260,13 @@ class LiftedMeasurement:
     """What the campaign's single-axis run measured on the lifted vehicle (``single_axis.json``), wheel
     side: ``friction`` ``{"d_vw": (value [N m s/rad], std), "d_cw": (value [N m], std)}`` pooled over the
     wheels, and ``wheels`` ``{wheel: {"B_w" | "d_vw" | "d_cw": (value, std)}}`` each with its own drive
-    (kg m², N m s/rad, N m)."""
+    (kg m², N m s/rad, N m); ``breakaway``: the wheel joints' breakaway excess (breakaway / d_cw − 1,
+    its standard error) from the lifted breakaway ramps (:mod:`qomni.ident.breakaway`), None for a run
+    without them."""
 
     friction: dict[str, tuple[float, float]]
     wheels: dict[str, dict[str, tuple[float, float]]]
+    breakaway: tuple[float, float] | None = None
 
 
 def read_lifted(run_dir: str | Path) -> LiftedMeasurement | None:
@@ -271,17 +275,25 @@ def read_lifted(run_dir: str | Path) -> LiftedMeasurement | None:
 
     Raises:
         RunDirectoryError: a value or std is missing or not finite, a B_w not positive, a friction
-            negative or a std not positive (the message names the file and key)."""
+            negative or a std not positive, a breakaway excess not finite or below −1 (the message names
+            the file and key)."""
     path = Path(run_dir) / SINGLE_AXIS_JSON
     if not path.exists():
         return None
     data = read_json(path)
+    breakaway = None
+    if isinstance(data.get("breakaway"), dict) and data["breakaway"].get("excess") is not None:
+        excess, std = _measured(path, data, ("breakaway", "excess"), positive=False, signed=True)
+        if excess < -1.0:
+            raise RunDirectoryError(f"{path}: breakaway.excess must be >= -1 (a breakaway torque >= 0), "
+                                    f"got {excess}")
+        breakaway = (excess, std)
     friction = {name: _measured(path, data, ("pooled", name), positive=False)
                 for name in LIFTED_WHEEL_PARAMETERS}
     wheels = {wheel: {name: _measured(path, data, ("wheels", wheel, name), positive=name == "B_w")
                       for name in ("B_w", *LIFTED_WHEEL_PARAMETERS)}
               for wheel in WHEELS}
-    return LiftedMeasurement(friction, wheels)
+    return LiftedMeasurement(friction, wheels, breakaway)
 
 
 def load_identification(path: str | Path) -> IdentificationResult:

@@ -9,6 +9,7 @@ fit takes B_w.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
@@ -21,12 +22,14 @@ from qomni.datasheet import DataSheet
 from qomni.vehicle_interface import VehicleInterface
 
 from . import filtering
+from .breakaway import STEP as BREAKAWAY_STEP
+from .breakaway import BreakawayController, BreakawayPlan, analyse_breakaway
 from .campaign import CampaignAborted
 from .control_design import design_pd
 from .fourier import design_fourier_trajectory
 from .least_squares import RANK_TOL, lstsq, newey_west_cov, rms
 from .plausibility import check_drives
-from .recording import SignalWriter, read_signals
+from .recording import RecordingError, SignalWriter, read_signals
 from .spikes import repair_spikes
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
 from .regressor_rows import applied_torque_at_samples, correlation_lag
@@ -45,9 +48,12 @@ def plan_single_axis(duration: float = 8.0, beta_max: float = 40.0, beta_dot_max
 
 
 def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | Path, trajectories,
-                    on_progress: Callable[[int, int, str], None] | None = None) -> Path:
+                    on_progress: Callable[[int, int, str], None] | None = None,
+                    breakaway: BreakawayPlan | None = BreakawayPlan()) -> Path:
     """Drive the lifted vehicle's wheels along ``trajectories`` (from :func:`plan_single_axis`, planned
-    before connecting: drives fault when SYNCs pause) and record into ``run_dir/single_axis``.
+    before connecting: drives fault when SYNCs pause), then (``breakaway`` not None) the breakaway ramps
+    of :mod:`.breakaway` from rest, and record both into ``run_dir/single_axis`` (steps ``single_axis``
+    and ``breakaway``).
 
     The operator must have lifted the vehicle (wheels free); the emulator does so with ``lifted``.
 
@@ -79,6 +85,8 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
             writer.write(STEP, 0, m, u)
             if on_progress:
                 on_progress(j + 1, cycles, STEP)
+        if breakaway is not None:
+            _run_breakaway(vehicle, sheet, breakaway, m, beta0, writer, on_progress)
     except BaseException as exc:  # noqa: BLE001 - stop the wheels whatever happened
         status = f"aborted: {type(exc).__name__}: {exc}"
         raise CampaignAborted(status) from exc
@@ -91,6 +99,24 @@ def run_single_axis(vehicle: VehicleInterface, sheet: DataSheet, run_dir: str | 
             meta["status"] = status
             write_json(out / METADATA, meta)
     return out
+
+
+def _run_breakaway(vehicle: VehicleInterface, sheet: DataSheet, plan: BreakawayPlan, m, beta0,
+                   writer: SignalWriter, on_progress) -> None:
+    """The breakaway ramps (:class:`.breakaway.BreakawayController`), from the measurement ``m`` on."""
+    d = sheet.drive
+    control = BreakawayController(plan, sheet.nominal.d_cw, d.cycle_time)
+    cycles = int(math.ceil(plan.longest(sheet.nominal.d_cw) / d.cycle_time))
+    for j in range(cycles):
+        beta = np.asarray(m.motor_position) / d.i_G - beta0
+        wheel = control.torque(beta, np.asarray(m.motor_velocity) / d.i_G)
+        if control.done:
+            break
+        u = np.clip(wheel / d.i_G, -0.95 * d.max_torque, 0.95 * d.max_torque)
+        m = vehicle.exchange(u)
+        writer.write(BREAKAWAY_STEP, 0, m, u)
+        if on_progress:
+            on_progress(j + 1, cycles, BREAKAWAY_STEP)
 
 
 def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: float = 0.0) -> SingleAxisResult:
@@ -109,11 +135,19 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: floa
     sig, spikes = repair_spikes(sig, str(path))
     sig = shift_torque(sig, torque_lag)
     d = sheet.drive
-    _, beta_dot, beta_ddot = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, d.cycle_time)
-    torque = filtering.zero_phase_lowpass(applied_torque_at_samples(sig.motor_torque), d.cycle_time)
+    tracking = sig.select(sig.step == STEP) if (sig.step == BREAKAWAY_STEP).any() else sig
+    _, beta_dot, beta_ddot = filtering.zero_phase_derivatives(tracking.motor_position / d.i_G, d.cycle_time)
+    torque = filtering.zero_phase_lowpass(applied_torque_at_samples(tracking.motor_torque), d.cycle_time)
     result = estimate_single_axis(beta_dot, beta_ddot, d.i_G * torque, velocity_threshold=0.5,
                                   correlation_lag=correlation_lag(d.cycle_time))
     data = result.to_json_dict()
+    try:
+        ramps = analyse_breakaway(sig, d.i_G, {w: result.values[w]["d_cw"] for w in result.values},
+                                  {w: result.values[w]["B_w"] for w in result.values})
+    except ValueError as exc:
+        raise RecordingError(f"{path}: breakaway ramps: {exc}") from None
+    if ramps is not None:
+        data["breakaway"] = ramps.to_json_dict()
     data["torque_lag"] = {"value": float(torque_lag), "unit": "s"}
     data["spikes"] = spikes.to_json_dict()
     write_json(run_dir / SINGLE_AXIS_JSON, data)

@@ -82,7 +82,8 @@ class RuleRows:
     (:attr:`qomni.ident.rundir.LiftedMeasurement.wheels`) or None; and the lane change's steering channel
     (:data:`qomni.diagnosis.channels.LANE_CHANGE_STEERING`, not a fitted channel of the diagnosis) of the
     diagnosed run and of the reference run, every row a fit row and paired as the torque channels are, or
-    None where the run has no lane change."""
+    None where the run has no lane change; the lifted wheels' breakaway excess (excess, σ)
+    (:attr:`qomni.ident.rundir.LiftedMeasurement.breakaway`) or None."""
 
     all_rows: object
     reference: object | None
@@ -92,6 +93,7 @@ class RuleRows:
     lifted_wheels: dict | None = None
     steering: object | None = None
     steering_reference: object | None = None
+    lifted_breakaway: tuple[float, float] | None = None
 
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:

@@ -82,6 +82,14 @@ STEERING_BEYOND_WHEELS_Z = 1.645
 #: the steering steps, for friction in both joints to be named. That velocity is chosen on other rows, so
 #: the lane change is tested once, not over the grid.
 LANE_CHANGE_STEERING_Z = float(stats.norm.isf(0.05))
+#: The lifted breakaway test (:mod:`qomni.ident.breakaway`) finds a low-speed peak in the wheel joints
+#: where its breakaway excess (breakaway / lifted d_cw − 1) is beyond 0 by a one-sided z of
+#: LIFTED_BREAKAWAY_Z (10⁻³, the rules' level for a measurement that decides alone) and at least
+#: LIFTED_BREAKAWAY_EXCESS: half the weakest peak of the realistic range (breakaway 1.2 × d_c). Without a
+#: peak the test reads −0.3…1.2 % (σ 0.3 %), with gear play as well; the realistic range's weak end reads
+#: 14–21 % (docs/diagnosis.md, "Stribeck: the lifted breakaway test").
+LIFTED_BREAKAWAY_Z = float(stats.norm.isf(1e-3))
+LIFTED_BREAKAWAY_EXCESS = 0.1
 
 
 def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, unsteered_sigma=None) -> None:
@@ -116,11 +124,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     variant's level is low against its σ there: on quick campaigns (master seed 2611) a heavy platform's
     wheel-joint friction read z = 1.4 against a predicted 1.7 (placed in the steering joints by the
     test alone), a wheel-joint case 2.7 against 3.7, a steering-joint case 0.1 against 2.9."""
-    by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
-    wheels, steering = by_variant.get("joints=wheels"), by_variant.get("joints=steering")
-    both = by_variant.get("joints=both")
-    if both is not None:
-        both.significant = False        # named by this rule alone, below
+    wheels, steering, both = _variants(candidates)
     if wheels is None or steering is None or not (steering.significant or wheels.significant):
         return
     z = unsteered_z(wheels.fit.nonlinear)
@@ -134,6 +138,83 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     if both is not None and z >= bar and (wheels.significant or steering.significant):
         _in_both_joints(both, wheels, steering, z, z_lc)
     evidence = _placement_evidence(z, bar, predicted, z_lc, steering.fit.nonlinear)
+    for c in (wheels, steering, both):
+        if c is not None:
+            c.notes.append(evidence)
+
+
+def _variants(candidates: list) -> tuple:
+    """The (wheels, steering, both) Stribeck candidates (None where absent); the both-joints variant
+    made not significant: the placement rules alone name it."""
+    by_variant = {c.hypothesis.variant: c for c in candidates if c.hypothesis.name == "stribeck"}
+    both = by_variant.get("joints=both")
+    if both is not None:
+        both.significant = False
+    return by_variant.get("joints=wheels"), by_variant.get("joints=steering"), both
+
+
+def lifted_peak(breakaway: tuple[float, float] | None) -> bool:
+    """Whether the lifted breakaway test's (excess, σ) shows a low-speed peak in the wheel joints:
+    excess ≥ LIFTED_BREAKAWAY_EXCESS and excess/σ ≥ LIFTED_BREAKAWAY_Z. None (no test): False."""
+    if breakaway is None:
+        return False
+    excess, std = breakaway
+    return excess >= LIFTED_BREAKAWAY_EXCESS and excess / std >= LIFTED_BREAKAWAY_Z
+
+
+def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], steered_z=None) -> None:
+    """Decide between the Stribeck variants by the lifted breakaway test: the wheel joints' breakaway
+    excess measured on the lifted vehicle (``breakaway``: (excess, σ), :mod:`qomni.ident.breakaway`),
+    where only the wheel joints' friction resists a drive's torque.
+
+    The ground's data establish low-speed friction (one variant significant); the lifted test places it.
+    With a peak in the wheel joints (excess ≥ LIFTED_BREAKAWAY_EXCESS and z ≥ LIFTED_BREAKAWAY_Z) the wheel
+    variant is named, with the steering variant's significance where only that one passed; and the
+    both-joints variant instead where the lane change places friction in the steering joints as well
+    (``steered_z``, as in :func:`tell_friction_joints_apart`). Without one the wheel variant is withdrawn,
+    and the steering variant named where it is physical, confirms on held-out data and is there, with the
+    wheel variant's significance where only that one passed. The steps without steering motion are not
+    asked: a wheel-joint level there competes with the Coulomb-like levels each step keeps where friction
+    differs from the model's (:func:`unsteered_wheel_level`), while the lifted wheel has nothing else."""
+    from ..evaluation import MIN_SHRINK   # the fitting machinery imports this package: import at use
+    from ..fit import present
+
+    wheels, steering, both = _variants(candidates)
+    if wheels is None or steering is None or not (steering.significant or wheels.significant):
+        return
+    excess, std = breakaway
+    z = excess / std
+    peak = lifted_peak(breakaway)
+    evidence = (f"placement: the lifted wheels break away at {1 + excess:.3f} × their Coulomb friction "
+                f"(excess {excess:.3f} ± {std:.3f}, z = {z:.1f}; a peak needs ≥ {LIFTED_BREAKAWAY_EXCESS:g} "
+                f"and z ≥ {LIFTED_BREAKAWAY_Z:.2f})")
+    if peak:
+        if steering.significant:
+            steering.significant = False
+            steering.notes.append("the lifted wheels break away above their Coulomb friction: the wheel "
+                                  "joints' variant is named")
+            if not wheels.significant:
+                wheels.significant = wheels.physical and wheels.evaluation.confirms(MIN_SHRINK) \
+                    and present(wheels)
+                wheels.notes.append(f"significance from the steering variant's test of the steering steps "
+                                    f"(p = {steering.p_value:.1e})")
+        z_lc = None if steered_z is None else steered_z(steering.fit.nonlinear)
+        if both is not None and wheels.significant:
+            _in_both_joints(both, wheels, steering, z, z_lc,
+                            f"the lifted wheels break away {excess:.3f} above their Coulomb friction (z = {z:.1f})")
+        if z_lc is not None:
+            evidence += (f"; the steering joints' level in the lane change z = {z_lc:.2f} at "
+                         f"{steering.fit.nonlinear:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
+    else:
+        if wheels.significant:
+            wheels.significant = False
+            wheels.notes.append("not named: the lifted wheels break away at their Coulomb friction")
+            if not steering.significant and steering.physical and steering.evaluation.confirms(MIN_SHRINK) \
+                    and present(steering):
+                steering.significant = True
+                steering.notes.append(f"named in the steering joints: the lifted wheels have no peak; "
+                                      f"significance from the wheel variant's test of the steering steps "
+                                      f"(p = {wheels.p_value:.1e})")
     for c in (wheels, steering, both):
         if c is not None:
             c.notes.append(evidence)
@@ -168,7 +249,8 @@ def _unsteered_bar(predicted: float | None) -> float:
         else WHEEL_FRICTION_Z
 
 
-def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | None = None) -> None:
+def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | None = None,
+                    wheel_evidence: str = "") -> None:
     """Name the both-joints variant in place of the single-joint one the placement chose, when the
     steering joints' level in the lane change (``z_lane_change``, at the Stribeck velocity of the steering
     variant's fit) exceeds the reference run's level there by LANE_CHANGE_STEERING_Z: the wheel joints are
@@ -177,7 +259,8 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
     nearly collinear, and a wheel-joint peak shows stronger than its column (the slowly rolling steered
     wheels stick and slip), so the both-joints fit hands the excess to the steering joints. Without a lane
     change (``z_lane_change`` None) the both-joints fit's steering coefficient beyond the reference run's
-    decides."""
+    decides. ``wheel_evidence``: what placed the wheel joints' share, for the note (default: the steps
+    without steering motion at ``z``)."""
     from ..fit import coefficient_z, present  # the fitting machinery imports this package: import at use
 
     if z_lane_change is None:
@@ -195,8 +278,9 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
         return
     chosen = wheels if wheels.significant else steering
     both.significant = True
-    both.notes.append(f"the wheel joints' level in the steps without steering motion exceeds the reference "
-                      f"run's by z = {z:.1f}, and the steering joints' level in {where} exceeds the reference "
+    wheel_evidence = wheel_evidence or (f"the wheel joints' level in the steps without steering motion exceeds "
+                                        f"the reference run's by z = {z:.1f}")
+    both.notes.append(f"{wheel_evidence}, and the steering joints' level in {where} exceeds the reference "
                       f"run's by z = {z_s:.1f}; steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
                       f"significance from the {chosen.hypothesis.variant} variant's test "
                       f"(p = {chosen.p_value:.1e})")
@@ -305,14 +389,20 @@ def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, c
 
 
 def resolve_joints(candidates: list, rows: RuleRows) -> None:
-    """The Stribeck variants' rule (``Hypothesis.resolve``): :func:`tell_friction_joints_apart` with the
-    wheel variant's level in the steps without steering motion (:func:`unsteered_wheel_level`) and the
-    steering variant's in the lane change (:func:`lane_change_steering_z`)."""
+    """The Stribeck variants' rule (``Hypothesis.resolve``): where the run has the lifted breakaway test,
+    :func:`place_by_lifted_breakaway`; otherwise :func:`tell_friction_joints_apart` with the wheel
+    variant's level in the steps without steering motion (:func:`unsteered_wheel_level`). Both take the
+    steering variant's level in the lane change (:func:`lane_change_steering_z`) for the steering
+    joints' share."""
+    steered = lane_change_steering_z(rows.steering, rows.steering_reference, rows.model, rows.lag,
+                                     rows.cache)
+    if rows.lifted_breakaway is not None:
+        place_by_lifted_breakaway(candidates, rows.lifted_breakaway, steered)
+        return
     level = unsteered_wheel_level(rows.all_rows, rows.reference, rows.model, rows.lag, rows.cache)
     tell_friction_joints_apart(candidates,
                                lambda v_s: None if level(v_s) is None else level(v_s)[0],
-                               lane_change_steering_z(rows.steering, rows.steering_reference, rows.model,
-                                                      rows.lag, rows.cache),
+                               steered,
                                lambda v_s: None if level(v_s) is None else level(v_s)[1])
 
 

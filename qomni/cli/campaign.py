@@ -13,7 +13,7 @@ from .app import app
 from .console import console, fail, guarded, run_with_progress
 from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICATION, FIG_VALIDATION,
                                 IDENTIFICATION_JSON, METADATA, SINGLE_AXIS_DIR, SINGLE_AXIS_FILES, VALIDATION_JSON,
-                                read_json)
+                                read_json, read_lifted)
 
 from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
                       PLANT_PROCESS_HELP, vehicle_link)
@@ -148,6 +148,9 @@ def _single_axis(out: Path, bus, vehicle, sheet, seed: int, gui: bool, effects=N
     pooled, std = result.pooled, result.pooled_std
     console.print("single-axis (lifted): " + ", ".join(
         f"{n} = {pooled[n]:.4g} ± {std[n]:.2g}" for n in ("B_w", "d_vw", "d_cw")))
+    breakaway = read_lifted(out).breakaway
+    if breakaway is not None:
+        console.print(f"breakaway (lifted): {1 + breakaway[0]:.3f} ± {breakaway[1]:.2g} × d_cw")
 
 
 @app.command("single-axis")
