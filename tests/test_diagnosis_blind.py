@@ -156,8 +156,9 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
     parameters free (it was identified on these data) the diagnosis against its twin names the drive.
     A weaker fl and a stronger rl load the left side's rows alike once the base is free: the diagnosis
     names one and gives the other as an equivalent explanation; the weaker fl must be among them.
-    It is named first; as a further effect this quick case also names wheel-joint Stribeck friction from
-    the left steering step (p = 3·10⁻⁴ against its bar of 6·10⁻⁴; docs/diagnosis.md, Limits)."""
+    It is named first. The left steering step suggests wheel-joint Stribeck friction as a further effect
+    (p = 3·10⁻⁴ against its bar of 6·10⁻⁴); the lifted breakaway test withdraws it (docs/diagnosis.md,
+    Limits)."""
     work, _ = suite
     gap = _diagnose_against_own_twin(work / "torque", work / "torque" / "twin_gap")
     assert gap["model_identified_on_data"] is True
