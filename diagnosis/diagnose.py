@@ -216,16 +216,10 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         cand = _fit_last(fp, hp, model, lag, sheet, accepted_fits, h, base, cache, levels)
         if cand is None:
             continue
-        q = len(h.parameters)
-        theta = cand.fit.theta[-q:]
-        cov = cand.fit.theta_cov[-q:, -q:]
-        physical = cand.physical  # the joint hypothesis checks the added effect's part
         significant = _passes_further(cand, alpha, floor)
-        sub = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
-                                cand.p_value, cand.evaluation, {}, physical, significant,
-                                ["accepted in forward selection with "
-                                 + ", ".join(c.hypothesis.label for c in accepted)],
-                                cand.added_to_model, cand.from_model, cand.presence_p)
+        sub = _as_last_effect(cand, h, sheet, significant,
+                              "accepted in forward selection with "
+                              + ", ".join(c.hypothesis.label for c in accepted))
         found.append((sub, cand.fit, significant))
     if rows is not None:
         subs = [f[0] for f in found]
@@ -237,6 +231,19 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     sub, fit = max(passed, key=lambda f: f[0].evaluation.removed)
     sub.identifiability = fitting.collinearity(fp, sub.hypothesis, fit.nonlinear, cache)
     return sub, fit
+
+
+def _as_last_effect(cand: fitting.Candidate, h: Hypothesis, sheet, significant: bool,
+                    note: str | None = None) -> fitting.Candidate:
+    """``h``'s candidate from a fit with the accepted effects in the model (:func:`_fit_last`): its
+    magnitude from the fit's own tail coefficients, ``significant`` and ``note`` as given. Its physical
+    check is the joint fit's, which checks the added effect's part."""
+    q = len(h.parameters)
+    theta, cov = cand.fit.theta[-q:], cand.fit.theta_cov[-q:, -q:]
+    return fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
+                             cand.p_value, cand.evaluation, {}, cand.physical, significant,
+                             [] if note is None else [note], cand.added_to_model, cand.from_model,
+                             cand.presence_p)
 
 
 def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
@@ -275,11 +282,7 @@ def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepte
             cand = _fit_last(fp, hp, model, lag, sheet, accepted_fits, h, base, cache, levels)
             if cand is None:
                 continue
-            q = len(h.parameters)
-            theta, cov = cand.fit.theta[-q:], cand.fit.theta_cov[-q:, -q:]
-            cand = fitting.Candidate(h, cand.fit, h.magnitude(theta, cov, cand.fit.nonlinear, sheet),
-                                     cand.p_value, cand.evaluation, {}, cand.physical, False, [],
-                                     cand.added_to_model, cand.from_model, cand.presence_p)
+            cand = _as_last_effect(cand, h, sheet, False)
             own = _tail_fit(h, cand.fit)
         else:
             cand = first.get(variant)
@@ -308,9 +311,8 @@ def _agrees_with_lifted(cand, excess: float, std: float) -> bool:
     """Whether a Stribeck fit's wheel-joint level (its first coefficient, breakaway/Coulomb − 1) agrees
     with the lifted wheels' breakaway excess (``excess`` ± ``std``) within a two-sided z of 3.29 (10⁻³),
     σ of the fit and of the measurement combined."""
-    theta = float(np.asarray(cand.fit.theta)[-len(cand.hypothesis.parameters)])
-    var = float(np.asarray(cand.fit.theta_cov)[-len(cand.hypothesis.parameters),
-                                               -len(cand.hypothesis.parameters)])
+    i = -len(cand.hypothesis.parameters)       # the wheel joints' coefficient leads the tail
+    theta, var = float(np.asarray(cand.fit.theta)[i]), float(np.asarray(cand.fit.theta_cov)[i, i])
     sigma = np.sqrt(max(var, 0.0) + std**2)
     return bool(sigma > 0 and abs(theta - excess) <= LIFTED_AGREE_Z * sigma)
 

@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from qomni.conventions import WHEELS
 
@@ -105,7 +106,7 @@ class BreakawayController:
                 if w.since >= p.rest and abs(beta_dot[j]) < 0.01:
                     w.ramping, w.since, w.beta0 = True, 0.0, float(beta[j])
                 continue
-            level = (p.start * self.d_cw + p.rate * w.since)
+            level = p.start * self.d_cw + p.rate * w.since
             if abs(beta[j] - w.beta0) > p.moved or level > p.cap * self.d_cw:
                 w.ramping, w.since = False, 0.0
                 w.index += 1
@@ -117,7 +118,8 @@ class BreakawayController:
 @dataclass
 class BreakawayResult:
     """Per wheel, the counted ramps' breakaway torques (N m, wheel side, signed by direction) and ratios to
-    the wheel's lifted d_cw; ``censored``: counted ramps that reached their cap without turning.
+    the wheel's lifted d_cw; ``censored``: counted ramps without a reading (the cap reached without
+    turning, or the wheel turning from the ramp's first rows).
 
     ``excess``/``excess_std``: the mean of breakaway/d_cw − 1 over every counted ramp of every wheel, and
     its standard error (the ramps' scatter / √n); ``ramps``: how many were counted."""
@@ -140,12 +142,6 @@ class BreakawayResult:
                               "(the first ramp after each change of direction takes up the gear play)"}
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of every maximal run of True in ``mask``."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist()))
-
-
 def breakaway_torque(time: np.ndarray, beta: np.ndarray, torque: np.ndarray, B_w: float) -> float | None:
     """The wheel-side torque (N m) at which a ramp's wheel starts to turn; None where it never does.
 
@@ -153,9 +149,9 @@ def breakaway_torque(time: np.ndarray, beta: np.ndarray, torque: np.ndarray, B_w
     torque of each SYNC's cycle (docs/conventions.md); ``B_w``: the wheel's inertia (kg m²). The torque
     is read from a straight line fitted to the ramp's torque up to the first row more than :data:`ONSET`
     from where the wheel last stood still (:data:`STILL` rows within ONSET), which averages the torque
-    actual's noise over the ramp instead of taking one sample of it. The wheel needs time to turn that far: once free, under Coulomb friction,
-    the ramp's excess rate·s accelerates it by rate·s/B_w, so it turns rate·s³/(6 B_w) in s seconds and
-    reaches ONSET s = (6 B_w ONSET/rate)^(1/3) after it broke away. The line is read that much earlier.
+    actual's noise over the ramp instead of taking one sample of it. The wheel needs time to turn that
+    far: once free, under Coulomb friction, the ramp's excess rate·s accelerates it by rate·s/B_w, so it
+    turns rate·s³/(6 B_w) in s seconds and reaches ONSET s = (6 B_w ONSET/rate)^(1/3) after it broke away. The line is read that much earlier.
     A wheel whose friction falls once it slides (a Stribeck peak) turns faster than that, so its
     breakaway is read up to (6 B_w ONSET)^(1/3) rate^(2/3) low (0.21 N m, 5 % of d_cw, at the default plan
     on the prototype): the excess is never read high."""
@@ -191,15 +187,15 @@ def analyse_breakaway(signals: Signals, i_G: float, d_cw: dict[str, float],
     if not rows.any():
         return None
     sig = signals.select(rows)
-    torques, ratios, censored, excess = {}, {}, {}, []
+    torques, ratios, censored = {}, {}, {}
     for j, wheel in enumerate(WHEELS):
         if not d_cw[wheel] > 0:
             raise ValueError(f"wheel {wheel}: lifted d_cw must be > 0, got {d_cw[wheel]}")
         cmd = sig.motor_torque_cmd[:, j]
-        ramps = _runs(cmd != 0)
         torques[wheel], ratios[wheel], censored[wheel] = [], [], 0
         previous = 0.0
-        for a, b in ramps:
+        for (ramp,) in ndimage.find_objects(ndimage.label(cmd != 0)[0]):
+            a, b = ramp.start, ramp.stop
             direction = float(np.sign(cmd[a]))
             counted = direction == previous
             previous = direction
@@ -212,9 +208,9 @@ def analyse_breakaway(signals: Signals, i_G: float, d_cw: dict[str, float],
                 continue
             torques[wheel].append(tau)
             ratios[wheel].append(abs(tau) / d_cw[wheel])
-            excess.append(abs(tau) / d_cw[wheel] - 1.0)
         if not torques[wheel] and not censored[wheel]:
             raise ValueError(f"wheel {wheel}: no counted breakaway ramp in the recording")
+    excess = [r - 1.0 for w in WHEELS for r in ratios[w]]
     n = len(excess)
     mean = float(np.mean(excess)) if n else math.nan
     std = float(np.std(excess, ddof=1) / math.sqrt(n)) if n > 1 else math.nan

@@ -86,8 +86,8 @@ LANE_CHANGE_STEERING_Z = float(stats.norm.isf(0.05))
 #: where its breakaway excess (breakaway / lifted d_cw − 1) is beyond 0 by a one-sided z of
 #: LIFTED_BREAKAWAY_Z (10⁻³, the rules' level for a measurement that decides alone) and at least
 #: LIFTED_BREAKAWAY_EXCESS: half the weakest peak of the realistic range (breakaway 1.2 × d_c). Without a
-#: peak the test reads −0.3…1.2 % (σ 0.3 %), with gear play as well; the realistic range's weak end reads
-#: 14–21 % (docs/diagnosis.md, "Stribeck: the lifted breakaway test").
+#: peak the test reads −0.3…2.1 % (σ 0.2–0.5 %), with gear play as well; the realistic range's weak end
+#: reads 15–21 % (docs/diagnosis.md, "Stribeck: the lifted breakaway test").
 LIFTED_BREAKAWAY_Z = float(stats.norm.isf(1e-3))
 LIFTED_BREAKAWAY_EXCESS = 0.1
 
