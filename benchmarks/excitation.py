@@ -6,7 +6,8 @@ For the prototype and the heavy platform (emulator/data/heavy_platform.toml) and
 full campaign (``qomni campaign``, single-axis B_w included) runs once with the ``richness`` design and
 once with the ``min_cond`` design (docs/identification.md, "Optimised excitation"), then
 ``qomni compare`` checks the parameters against the emulator's truth. Printed per vehicle and design:
-cond(Θ̂₁ᵀΘ̂₁) planned (:func:`qomni.ident.planned_regressor.planned_condition`) and measured, each
+cond(Θ̂₁ᵀΘ̂₁) planned (:func:`qomni.ident.planned_regressor.planned_condition`) and measured (median
+and largest), the straight's and the rotation's planned RMS acceleration, each
 parameter's relative error (mean |e| over the seeds and the largest), the largest error of each run (mean
 over the seeds), the occupied rectangle, the peak |motor torque| of each identification step and the
 share of its cycles at the drives' torque limit; then min_cond / richness ratios. Every campaign takes
@@ -29,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))                 # this checkout's qomni, not an installed one
 
 from qomni.datasheet import DataSheet  # noqa: E402
-from qomni.ident.campaign import IDENTIFICATION_STEPS, CampaignSettings  # noqa: E402
+from qomni.ident.campaign import IDENTIFICATION_STEPS, CampaignSettings, plan  # noqa: E402
 from qomni.ident.planned_regressor import planned_condition  # noqa: E402
 from qomni.ident.rundir import load_repaired_run, step_signals  # noqa: E402
 
@@ -71,12 +72,24 @@ def summary(rows: list[dict]) -> dict:
     names = list(rows[0]["error"])
     errors = np.array([[r["error"][n] for n in names] for r in rows])
     return {"cond": float(np.median([r["cond"] for r in rows])),
+            "cond_max": float(np.max([r["cond"] for r in rows])),
             "mean_abs": dict(zip(names, np.mean(np.abs(errors), axis=0))),
             "max_abs": dict(zip(names, np.max(np.abs(errors), axis=0))),
             "run_max": float(np.mean(np.max(np.abs(errors), axis=1))),
             "rectangle": rows[0]["rectangle"],
             "torque": {s: (max(r["torque"][s][0] for r in rows), max(r["torque"][s][1] for r in rows))
                        for s in IDENTIFICATION_STEPS}}
+
+
+def planned_accel(sheet: DataSheet, criterion: str) -> dict[str, float]:
+    """RMS planned acceleration (m/s², rad/s²) of the straight and the rotation with ``criterion``."""
+    out = {}
+    for step in plan(sheet, CampaignSettings(excitation=criterion)):
+        if step.name in ("straight", "rotation"):
+            ((_, trajectory),) = step.trajectories.items()
+            _, _, qdd = trajectory.evaluate(np.arange(0.0, trajectory.duration, sheet.drive.cycle_time))
+            out[step.name] = float(np.sqrt(np.mean(qdd ** 2)))
+    return out
 
 
 def main(argv=None) -> int:
@@ -105,6 +118,10 @@ def main(argv=None) -> int:
                 f"{label:24s}" + f.format(a) + f.format(b) + f"{b / a if a else float('nan'):10.2f}")
             line("cond planned", planned["richness"], planned["min_cond"])
             line("cond measured (median)", s["richness"]["cond"], s["min_cond"]["cond"])
+            line("cond measured (max)", s["richness"]["cond_max"], s["min_cond"]["cond_max"])
+            accel = {c: planned_accel(sheet, c) for c in CRITERIA}
+            for step in ("straight", "rotation"):
+                line(f"RMS accel planned {step}", accel["richness"][step], accel["min_cond"][step])
             for name in s["richness"]["mean_abs"]:
                 cells = (f"{s[c]['mean_abs'][name]:15.2f} / {s[c]['max_abs'][name]:4.2f}" for c in CRITERIA)
                 print(f"{'|e| % ' + name + ' mean/max':24s}" + "".join(cells))

@@ -57,6 +57,13 @@ COAST = 0.5
 RECOVER = 1.5
 
 
+#: The min_cond design keeps the planned cond(Θ̂₁ᵀΘ̂₁) this share below ``CampaignSettings.cond_target``:
+#: the measured figure adds tracking error, noise and the zero-phase filter (docs/identification.md).
+PLANNED_COND_MARGIN = 0.03
+#: The chassis steps' cond cap is searched to this resolution.
+CAP_RESOLUTION = 0.05
+
+
 class CampaignAborted(RuntimeError):
     """The campaign stopped early; the run directory keeps what was recorded until then."""
 
@@ -109,12 +116,17 @@ class CampaignSettings:
     # The identification steps' design criterion (excitation.CRITERIA). "richness" is the random-start
     # design of ``n_harmonics`` harmonics over ``steer_period`` / ``chassis_period``, with ``seed``;
     # "min_cond" minimises each viscous/Coulomb pair's condition number, the pairs that bound cond(Θ̂₁ᵀΘ̂₁),
-    # with ``min_cond_harmonics`` harmonics of a base period it chooses itself: cond 4.5 instead of 18.7
-    # and better steering parameters, but its chassis steps hold a third of the acceleration, which the
-    # twin-reference diagnosis needs (docs/identification.md, "Optimised excitation"). The arcs always
-    # use the richness design.
+    # with ``min_cond_harmonics`` harmonics of a base period it chooses itself, and gives the chassis steps
+    # the most acceleration that keeps the planned stack within ``cond_target``: cond 4.7 instead of 18.7
+    # and better steering parameters, but the twin-reference diagnosis names heavy steering units at the
+    # low end of their range less often (docs/identification.md, "Optimised excitation"). The arcs
+    # always use the richness design.
     excitation: str = "richness"
     min_cond_harmonics: int = 16
+    # With "min_cond": the chassis steps' harmonics (their bursts need more than the steering's sawtooth)
+    # and the bound their design keeps the planned cond(Θ̂₁ᵀΘ̂₁) below (less PLANNED_COND_MARGIN).
+    min_cond_chassis_harmonics: int = 32
+    cond_target: float = 5.0
     n_harmonics: int = 5
     steer_period: float = 4.0  # s, base period of the steering excitation (repeated over the step)
     chassis_period: float = 5.0  # s, base period of the straight and rotation excitation
@@ -125,10 +137,10 @@ class CampaignSettings:
 
         Raises: ValueError naming the key: not a number (a string, a boolean), not finite, an integer
         setting with a fraction, a duration, limit or period ≤ 0 (the arcs' duration and the rest and
-        alignment times may be 0), fewer than one lane change or harmonic, an excitation criterion not in
-        ``excitation.CRITERIA``."""
+        alignment times may be 0), fewer than one lane change or harmonic, a cond target ≤ 1, an excitation
+        criterion not in ``excitation.CRITERIA``."""
         may_be_zero = {"arc_duration", "align_duration", "rest_duration", "seed"}
-        at_least_one = {"lane_changes", "n_harmonics", "min_cond_harmonics"}
+        at_least_one = {"lane_changes", "n_harmonics", "min_cond_harmonics", "min_cond_chassis_harmonics"}
         if self.excitation not in excitation.CRITERIA:
             raise ValueError(f"settings.excitation must be one of {excitation.CRITERIA}, "
                              f"got {self.excitation!r}")
@@ -148,6 +160,8 @@ class CampaignSettings:
                 raise ValueError(f"{where} must be >= 0, got {value!r}")
             if f.name not in may_be_zero | at_least_one and not value > 0:
                 raise ValueError(f"{where} must be > 0, got {value!r}")
+            if f.name == "cond_target" and not value > 1:
+                raise ValueError(f"{where} must be > 1 (a condition number), got {value!r}")
 
     @classmethod
     def quick(cls, **overrides) -> "CampaignSettings":
@@ -177,34 +191,37 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     def designed(coordinate: str, duration: float, period: float, cond_cap: float | None = None) -> dict:
         """The design keywords of one excited coordinate."""
         if s.excitation == "min_cond":
-            cap = {} if cond_cap is None else {"cond_cap": cond_cap}
+            if cond_cap is None:
+                return dict(criterion="min_cond", threshold=VELOCITY_THRESHOLD[coordinate],
+                            n_harmonics=s.min_cond_harmonics)
             return dict(criterion="min_cond", threshold=VELOCITY_THRESHOLD[coordinate],
-                        n_harmonics=s.min_cond_harmonics, **cap)
+                        n_harmonics=s.min_cond_chassis_harmonics, cond_cap=cond_cap)
         # A long step is several repetitions of a short base period: a single slow period would keep
         # |α̇| nearly constant within the position limits, which makes d_v and d_c collinear.
         return dict(periods=_periods(duration, period), **common)
 
     steer = dict(duration=s.steer_duration, alpha_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
                  alpha_ddot_max=s.alpha_ddot_max, **designed("alpha_l", s.steer_duration, s.steer_period))
-    steer_left = excitation.steer_left_excitation(seed=s.seed + 1, **steer)
-    # The steering pairs bound the stack's cond (docs/identification.md, "Optimised excitation"); the
-    # chassis steps may spend what their pair has below it on acceleration.
-    cap = None
+    steering = [excitation.steer_left_excitation(seed=s.seed + 1, **steer),
+                excitation.steer_right_excitation(seed=s.seed + 2, **steer)]
+
+    def chassis(cap: float | None) -> list[ExcitationStep]:
+        return [excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
+                                               x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
+                                               seed=s.seed + 3,
+                                               **designed("x_ch", s.straight_duration, s.chassis_period, cap)),
+                excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
+                                               gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
+                                               gamma_ddot_max=s.gamma_ddot_max,
+                                               seed=s.seed + 4,
+                                               **designed("gamma_ch", s.rotation_duration, s.chassis_period,
+                                                          cap))]
+
     if s.excitation == "min_cond":
-        cap = round(trajectory_pair_condition(steer_left.trajectories["alpha_l"],
-                                              VELOCITY_THRESHOLD["alpha_l"], sheet.drive.cycle_time), 2)
-    steps = [
-        steer_left,
-        excitation.steer_right_excitation(seed=s.seed + 2, **steer),
-        excitation.straight_excitation(duration=s.straight_duration, x_max=s.x_max,
-                                       x_dot_max=s.x_dot_max, x_ddot_max=s.x_ddot_max,
-                                       seed=s.seed + 3,
-                                       **designed("x_ch", s.straight_duration, s.chassis_period, cap)),
-        excitation.rotation_excitation(l=g.l, b=g.b, duration=s.rotation_duration,
-                                       gamma_max=s.gamma_max, gamma_dot_max=s.gamma_dot_max,
-                                       gamma_ddot_max=s.gamma_ddot_max,
-                                       seed=s.seed + 4,
-                                       **designed("gamma_ch", s.rotation_duration, s.chassis_period, cap)),
+        identification = steering + _capped_chassis(steering, chassis, sheet, s.cond_target)
+    else:
+        identification = steering + chassis(None)
+    steps = identification + [
         excitation.lane_change(l=g.l, duration=s.lane_change_duration, distance=s.lane_distance,
                                lane_width=s.lane_width, changes=s.lane_changes,
                                alpha_v_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
@@ -219,6 +236,45 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
             periods=_periods(s.arc_duration, s.chassis_period), seed=s.seed + i, **common)
             for i, side in ((5, 1), (6, -1))]
     return steps
+
+
+def _capped_chassis(steering: list[ExcitationStep], chassis, sheet: DataSheet,
+                    cond_target: float) -> list[ExcitationStep]:
+    """The min_cond campaign's straight and rotation: designed for the most acceleration under a common
+    pair cond cap, the largest cap (to :data:`CAP_RESOLUTION`, between the steering pair's cond and
+    ``cond_target``) whose planned cond(Θ̂₁ᵀΘ̂₁) stays within (1 − :data:`PLANNED_COND_MARGIN`) ×
+    ``cond_target``; the steering pair's cond where none does.
+
+    The steering pairs bound the stack's cond from below (docs/identification.md, "Optimised
+    excitation"); the chassis steps may spend the slack above them on acceleration. The stack is checked
+    as a whole because the straight and the rotation share the wheels' pair (d_vw, d_cw): two steps each
+    within the cap can give that pair a larger cond together."""
+    from .planned_regressor import steps_condition   # it plans through this module
+
+    (coordinate, trajectory), = steering[0].trajectories.items()
+    low = round(trajectory_pair_condition(trajectory, VELOCITY_THRESHOLD[coordinate],
+                                          sheet.drive.cycle_time), 2)
+    bound = (1 - PLANNED_COND_MARGIN) * cond_target
+
+    def within(cap: float) -> list[ExcitationStep] | None:
+        steps = chassis(cap)
+        return steps if steps_condition(steering + steps, sheet) <= bound else None
+
+    best = within(low) if low < cond_target else None
+    if best is None:
+        return chassis(low)
+    high = round(cond_target, 2)
+    top = within(high)
+    if top is not None:
+        return top
+    while high - low > CAP_RESOLUTION:
+        middle = round((low + high) / 2, 2)
+        steps = within(middle)
+        if steps is None:
+            high = middle
+        else:
+            low, best = middle, steps
+    return best
 
 
 def _periods(duration: float, base_period: float) -> int:

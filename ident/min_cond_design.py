@@ -27,6 +27,18 @@ The design (:func:`design_min_cond_trajectory`):
    is summed by ``numpy.einsum`` (no threaded BLAS), so the result does not depend on the number of BLAS
    threads;
 4. scaled as far as the position, velocity and acceleration limits allow (× ``margin``).
+5. With a cond cap (the chassis steps of a campaign, whose pairs have slack below the steering pairs'
+   bound on the stack) the criterion changes: the most RMS acceleration (inertia information, and the
+   torque rate the lag estimate needs) whose pair cond stays at or below the cap. Acceleration and a low ρ
+   pull against each other: |q̈| comes from changing |q̇|, and every row on the way between the levels
+   raises ρ. The profiles that spend it best hold the slow level on most rows and add short bursts to the
+   velocity limit and back (:func:`burst_velocity`): few rows of high |q̇|, which is what the pair needs,
+   and ramps at the acceleration limit. So the capped design projects a grid of start profiles (the
+   two-level one and 1–3 bursts each way, over slow levels, peaks and ramp rates: :data:`START_BURSTS`
+   and the three lists beside it) for :func:`base_period`'s number of base periods and up to
+   :data:`MAX_EXTRA_PERIODS` more, takes the one of the least capped criterion
+   −log(RMS q̈ / q̈_max) + :data:`CAP_WEIGHT` · max(0, log(cond/cap)) + the lost and near terms of step 3,
+   and minimises that criterion from there with Powell.
 
 The optimisation takes seconds per step; designs are memoised in-process and those of the full campaign
 with the min_cond criterion are shipped in ``data/min_cond_designs.json`` (key: every design input and
@@ -46,12 +58,12 @@ from scipy import linalg, optimize
 from . import filtering
 from .fourier import FourierTrajectory, _basis, _limit_scale
 
-__all__ = ["DESIGN_VERSION", "base_period", "design_min_cond_trajectory", "near_reversal", "pair_condition",
-           "trajectory_pair_condition", "two_level_velocity"]
+__all__ = ["DESIGN_VERSION", "base_period", "burst_velocity", "design_min_cond_trajectory", "near_reversal",
+           "pair_condition", "trajectory_pair_condition", "two_level_velocity"]
 
 #: Bumped whenever the design procedure or its constants change, so that shipped designs of an older
 #: procedure are not used.
-DESIGN_VERSION = 1
+DESIGN_VERSION = 2
 SHIPPED_DESIGNS = Path(__file__).with_name("data") / "min_cond_designs.json"
 #: Samples per second of the design grid (one base period).
 GRID_RATE = 250.0
@@ -66,6 +78,16 @@ KEEP_FACTOR = 1.1
 REVERSAL_WEIGHT = 10.0
 #: With a cond cap, how many more base periods than :func:`base_period`'s the design tries.
 MAX_EXTRA_PERIODS = 4
+#: The capped design's start profiles: bursts per quarter period (0: the two-level profile), slow levels
+#: (× ``slow_factor`` × the threshold), peaks (× the velocity limit), ramps (× the acceleration limit).
+START_BURSTS = (1, 2, 3)
+START_SLOW_SCALES = (1.0, 1.25, 1.6)
+START_PEAKS = (0.6, 0.8, 1.0)
+START_RAMPS = (0.8, 0.95)
+#: The capped criterion's weight on log(cond/cap) above the cap: a 1 % excess costs as much as 20 % less
+#: RMS acceleration, so the optimum sits at the cap within :data:`CAP_TOLERANCE`.
+CAP_WEIGHT = 20.0
+CAP_TOLERANCE = 0.01
 
 
 def pair_condition(qd: np.ndarray, qdd: np.ndarray, threshold: float) -> tuple[float, float]:
@@ -156,6 +178,65 @@ def two_level_velocity(t: np.ndarray, period: float, slow: float, fast: float, a
     return np.interp(np.mod(t, period), edges, values)
 
 
+def burst_velocity(t: np.ndarray, period: float, slow: float, peak: float, accel: float, near: float,
+                   gentle: float, bursts: int, pause: float = 0.1) -> np.ndarray:
+    """Velocity of a burst start profile at ``t`` (one base period, (N,) → (N,)).
+
+    Pause at rest, a quarter at −``slow``, a half at +``slow``, a quarter at −``slow``, back to rest, pause;
+    the half holds ``bursts`` triangular bursts from the slow level to +``peak`` and back at ``accel``, the
+    quarters ⌈bursts/2⌉ and ⌊bursts/2⌋ to −``peak``. The plateaus between them share the remaining time so that the
+    period covers no way. Ramps through |q̇| < ``near`` run at ``gentle`` (:func:`two_level_velocity`).
+    The slow level holds what the bursts leave of the period, as in the two-level profile, and the bursts
+    add acceleration on few rows of high velocity, which is what keeps the pair's ρ = mean|q̇|/rms(q̇) low.
+
+    Raises: ValueError where the period is too short for the ramps and bursts, or ``bursts`` < 1.
+    """
+    if bursts < 1:
+        raise ValueError(f"bursts must be >= 1, got {bursts}")
+
+    def ramp(v0: float, v1: float) -> list[tuple[float, float, float]]:
+        """(duration, v_start, v_end) segments from v0 to v1, gentle while |q̇| < near."""
+        points = [v0] + [e for e in (-near, near) if min(v0, v1) < e < max(v0, v1)] + [v1]
+        points.sort(reverse=v0 > v1)
+        return [(abs(b - a) / (gentle if max(abs(a), abs(b)) <= near * (1 + 1e-12) else accel), a, b)
+                for a, b in zip(points[:-1], points[1:])]
+
+    def burst(sign: float) -> list[tuple[float, float, float]]:
+        return ramp(sign * slow, sign * peak) + ramp(sign * peak, sign * slow)
+
+    plateau = None                     # placeholder of a slow plateau, sign given by the group
+    groups = [(-1.0, (bursts + 1) // 2), (1.0, bursts), (-1.0, bursts // 2)]
+    body: list = ramp(0.0, -slow)
+    for i, (sign, n) in enumerate(groups):
+        for _ in range(n):
+            body += [(plateau, sign)] + burst(sign)
+        body.append((plateau, sign))
+        if i + 1 < len(groups):
+            body += ramp(sign * slow, -sign * slow)
+    body += ramp(-slow, 0.0)
+    ramps = [seg for seg in body if seg[0] is not None and len(seg) == 3]
+    free = period - 2 * pause - sum(d for d, _, _ in ramps)
+    way = sum(d * (v0 + v1) / 2 for d, v0, v1 in ramps)
+    n_minus = sum(1 for seg in body if len(seg) == 2 and seg[1] < 0)
+    n_plus = sum(1 for seg in body if len(seg) == 2 and seg[1] > 0)
+    # n_minus d_minus + n_plus d_plus = free and slow (n_plus d_plus − n_minus d_minus) + way = 0
+    d_plus = (free - way / slow) / (2 * n_plus)
+    d_minus = (free - n_plus * d_plus) / n_minus
+    if free <= 0 or d_plus <= 0 or d_minus <= 0:
+        raise ValueError(f"a base period of {period:.3g} s cannot hold {bursts} bursts each way")
+    knots = [(pause, 0.0, 0.0)]
+    for seg in body:
+        if len(seg) == 2:
+            v = seg[1] * slow
+            knots.append((d_plus if seg[1] > 0 else d_minus, v, v))
+        else:
+            knots.append(seg)
+    knots.append((pause, 0.0, 0.0))
+    edges = np.concatenate([[0.0], np.cumsum([k[0] for k in knots])])
+    values = [k[1] for k in knots] + [0.0]
+    return np.interp(np.mod(t, period), edges, values)
+
+
 def trajectory_pair_condition(trajectory: FourierTrajectory, threshold: float,
                               cycle_time: float = 2e-3) -> float:
     """The pair cond (:func:`pair_condition`) of a designed trajectory sampled every ``cycle_time`` s."""
@@ -170,44 +251,129 @@ def base_period(duration: float, q_range: float, slow: float, fast: float, accel
     return max(1, int(duration // needed))
 
 
+class _StepGrid:
+    """One base period's design grid: the rest-constrained Fourier basis sampled at :data:`GRID_RATE`, the
+    step's limits and the criterion's parts of a coefficient vector z (in the constraints' null space)."""
+
+    def __init__(self, periods: int, duration: float, q_min: float, q_max: float, qd_max: float,
+                 qdd_max: float, q_start: float, threshold: float, n_harmonics: int, slow: float):
+        self.period = duration / periods
+        self.omega = 2 * math.pi / self.period
+        self.t = np.arange(int(round(self.period * GRID_RATE))) / GRID_RATE
+        self.null = linalg.null_space(FourierTrajectory.rest_constraint_matrix(n_harmonics))
+        self.p, self.v, self.a = (m @ self.null for m in _basis(n_harmonics, self.omega, self.t))
+        self.limits = (q_max - q_start, q_start - q_min, qd_max, qdd_max)
+        self.threshold, self.slow = threshold, slow
+        self.reach = int(math.ceil(REVERSAL_REACH / filtering.OMEGA_G * GRID_RATE))
+
+    def project(self, velocity: np.ndarray) -> np.ndarray:
+        """z whose velocity is the least-squares fit of ``velocity`` (sampled on ``t``)."""
+        return np.linalg.lstsq(self.v, velocity, rcond=None)[0]
+
+    def scale(self, z: np.ndarray) -> float:
+        """The factor that scales z to the limits."""
+        up, down, qd_max, qdd_max = self.limits
+        return _limit_scale(self.p @ z, self.v @ z, self.a @ z, up, down, qd_max, qdd_max)
+
+    def measures(self, z: np.ndarray) -> tuple[float, float, float, float]:
+        """z scaled to the limits: (pair cond over the rows above KEEP_FACTOR × threshold, their share, the
+        share of rows above the threshold near a reversal, RMS acceleration)."""
+        s = self.scale(z)
+        qd, qdd = s * (self.v @ z), s * (self.a @ z)
+        cond, kept = pair_condition(qd, qdd, KEEP_FACTOR * self.threshold)
+        near = near_reversal(qd, self.slow, self.reach) & (np.abs(qd) >= self.threshold)
+        return cond, kept, float(near.mean()), float(np.sqrt(np.mean(qdd ** 2)))
+
+    def coefficients(self, z: np.ndarray, margin: float) -> np.ndarray:
+        """c = [a; b] of z scaled to ``margin`` × the limits."""
+        return self.null @ (z * margin * self.scale(z))
+
+
 def _design_periods(periods: int, duration: float, q_min: float, q_max: float, qd_max: float,
                     qdd_max: float, q_start: float, threshold: float, n_harmonics: int, slow_factor: float,
-                    lost_weight: float, evaluations: int, margin: float) -> tuple[np.ndarray, float, float]:
-    """The design over ``periods`` base periods: (coefficients c = [a; b], its pair cond at the threshold,
-    its RMS acceleration). Raises ValueError where a base period cannot hold the two-level profile."""
+                    lost_weight: float, evaluations: int, margin: float) -> np.ndarray:
+    """The uncapped design over ``periods`` base periods: its coefficients c = [a; b]. Raises ValueError
+    where a base period cannot hold the two-level profile."""
     slow = slow_factor * threshold
-    period = duration / periods
-    omega = 2 * math.pi / period
-    t = np.arange(int(round(period * GRID_RATE))) / GRID_RATE
-    null = linalg.null_space(FourierTrajectory.rest_constraint_matrix(n_harmonics))
-    p, v, a = (m @ null for m in _basis(n_harmonics, omega, t))
+    grid = _StepGrid(periods, duration, q_min, q_max, qd_max, qdd_max, q_start, threshold, n_harmonics, slow)
     reach_time = REVERSAL_REACH / filtering.OMEGA_G
-    start = two_level_velocity(t, period, slow, qd_max, 0.8 * qdd_max, near=threshold,
-                               gentle=0.9 * threshold / reach_time)
-    z0 = np.linalg.lstsq(v, start, rcond=None)[0]
-    q_low, q_high = q_start - q_min, q_max - q_start
-    reach = int(math.ceil(reach_time * GRID_RATE))
-
-    def scale(z) -> tuple[float, np.ndarray, np.ndarray]:
-        """The factor that scales z to the limits, and the unscaled q̇, q̈."""
-        qd, qdd = v @ z, a @ z
-        return _limit_scale(p @ z, qd, qdd, q_high, q_low, qd_max, qdd_max), qd, qdd
+    z0 = grid.project(two_level_velocity(grid.t, grid.period, slow, qd_max, 0.8 * qdd_max, near=threshold,
+                                         gentle=0.9 * threshold / reach_time))
 
     def objective(z):
-        s, qd, qdd = scale(z)
-        qd = s * qd
-        cond, kept = pair_condition(qd, s * qdd, KEEP_FACTOR * threshold)
+        cond, kept, near, _ = grid.measures(z)
         if not math.isfinite(cond):
             return 50.0
-        near = near_reversal(qd, slow, reach) & (np.abs(qd) >= threshold)
-        return math.log(cond) + lost_weight * (1.0 - kept) + REVERSAL_WEIGHT * float(near.mean())
+        return math.log(cond) + lost_weight * (1.0 - kept) + REVERSAL_WEIGHT * near
 
     res = optimize.minimize(objective, z0, method="Powell",
                             options={"maxfev": evaluations, "xtol": 1e-4, "ftol": 1e-7})
-    z = res.x if res.fun <= objective(z0) else z0
-    z = z * margin * scale(z)[0]
-    cond = pair_condition(v @ z, a @ z, threshold)[0]
-    return null @ z, cond, float(np.sqrt(np.mean((a @ z) ** 2)))
+    return grid.coefficients(res.x if res.fun <= objective(z0) else z0, margin)
+
+
+def _start_profiles(grid: _StepGrid, slow_factor: float, qd_max: float, qdd_max: float):
+    """The capped design's start velocities on ``grid``: the two-level profile and :func:`burst_velocity`
+    with 1–3 bursts, over slow levels, peaks and ramp accelerations (:data:`START_SLOW_SCALES`,
+    :data:`START_PEAKS`, :data:`START_RAMPS`); those a base period cannot hold are left out."""
+    threshold = grid.threshold
+    gentle = 0.9 * threshold / (REVERSAL_REACH / filtering.OMEGA_G)
+    for scale in START_SLOW_SCALES:
+        slow = scale * slow_factor * threshold
+        for peak in START_PEAKS:
+            for ramp in START_RAMPS:
+                for bursts in (0,) + START_BURSTS:
+                    try:
+                        if bursts == 0:
+                            yield two_level_velocity(grid.t, grid.period, slow, peak * qd_max, ramp * qdd_max,
+                                                     near=threshold, gentle=gentle)
+                        else:
+                            yield burst_velocity(grid.t, grid.period, slow, peak * qd_max, ramp * qdd_max,
+                                                 near=threshold, gentle=gentle, bursts=bursts)
+                    except ValueError:
+                        continue
+
+
+def _design_capped(first_periods: int, duration: float, q_min: float, q_max: float, qd_max: float,
+                   qdd_max: float, q_start: float, threshold: float, n_harmonics: int, slow_factor: float,
+                   lost_weight: float, evaluations: int, margin: float, cond_cap: float
+                   ) -> tuple[int, np.ndarray] | None:
+    """The capped design (module docstring, step 5): (periods, coefficients c = [a; b]) of the most RMS
+    acceleration whose pair cond stays within ``cond_cap`` (× 1 + :data:`CAP_TOLERANCE`); None where no
+    start profile of any period count stays within it."""
+    slow = slow_factor * threshold
+
+    def objective(z, grid):
+        cond, kept, near, accel = grid.measures(z)
+        if not math.isfinite(cond) or accel <= 0:
+            return 50.0
+        return (-math.log(accel / qdd_max) + CAP_WEIGHT * max(0.0, math.log(cond / cond_cap))
+                + lost_weight * (1.0 - kept) + REVERSAL_WEIGHT * near)
+
+    best = None                       # (objective, grid, z)
+    feasible = None                   # (RMS acceleration, grid, z) of the best start within the cap
+    for periods in range(first_periods, first_periods + MAX_EXTRA_PERIODS + 1):
+        grid = _StepGrid(periods, duration, q_min, q_max, qd_max, qdd_max, q_start, threshold, n_harmonics,
+                         slow)
+        for start in _start_profiles(grid, slow_factor, qd_max, qdd_max):
+            z = grid.project(start)
+            value = objective(z, grid)
+            if best is None or value < best[0]:
+                best = (value, grid, z)
+            cond, _, _, accel = grid.measures(z)
+            if cond <= cond_cap and (feasible is None or accel > feasible[0]):
+                feasible = (accel, grid, z)
+    if best is None:
+        return None
+    _, grid, z0 = best
+    res = optimize.minimize(objective, z0, args=(grid,), method="Powell",
+                            options={"maxfev": evaluations, "xtol": 1e-4, "ftol": 1e-7})
+    for z in (res.x, z0):
+        if grid.measures(z)[0] <= cond_cap * (1 + CAP_TOLERANCE):
+            return int(round(duration / grid.period)), grid.coefficients(z, margin)
+    if feasible is None:
+        return None
+    _, grid, z = feasible
+    return int(round(duration / grid.period)), grid.coefficients(z, margin)
 
 
 @functools.lru_cache(maxsize=64)
@@ -217,18 +383,11 @@ def _design(duration: float, q_min: float, q_max: float, qd_max: float, qdd_max:
     args = (duration, q_min, q_max, qd_max, qdd_max, q_start, threshold, n_harmonics, slow_factor,
             lost_weight, evaluations, margin)
     periods = base_period(duration, q_max - q_min, slow_factor * threshold, qd_max, qdd_max)
-    best = (periods, _design_periods(periods, *args))
-    if cond_cap > 0:
-        # the most acceleration (inertia information, torque rate for the lag) among the period counts
-        # whose pair cond stays within the cap
-        for more in range(periods + 1, periods + MAX_EXTRA_PERIODS + 1):
-            try:
-                candidate = _design_periods(more, *args)
-            except ValueError:
-                break
-            if candidate[1] <= cond_cap and candidate[2] > best[1][2]:
-                best = (more, candidate)
-    periods, (c, _, _) = best
+    capped = _design_capped(periods, *args, cond_cap) if cond_cap > 0 else None
+    if capped is not None:
+        periods, c = capped
+    else:
+        c = _design_periods(periods, *args)
     return (tuple(c[:n_harmonics].tolist()), tuple(c[n_harmonics:].tolist()), periods,
             2 * math.pi * periods / duration)
 
@@ -282,10 +441,11 @@ def design_min_cond_trajectory(*, duration: float, q_min: float, q_max: float, q
             slow level at ``slow_factor`` × it, the margin for tracking error and filtering.
         n_harmonics: harmonics of the base period (≥ 4).
         slow_factor, lost_weight, evaluations, margin: design criterion and budget (module docstring).
-        cond_cap: where given, the step may hold more base periods than :func:`base_period`'s (up to
-            :data:`MAX_EXTRA_PERIODS` more): the design with the largest RMS acceleration whose pair cond
-            stays at or below the cap. A campaign caps the chassis steps at the steering steps' pair cond,
-            which bounds the stack's, so the chassis steps spend their slack on inertia information.
+        cond_cap: where given, the design with the largest RMS acceleration whose pair cond stays at or
+            below the cap (within :data:`CAP_TOLERANCE`; module docstring, step 5), over
+            :func:`base_period`'s number of base periods and up to :data:`MAX_EXTRA_PERIODS` more; where
+            no start profile stays within it, the uncapped design. A campaign caps its chassis steps so
+            that the planned stack stays within its cond target (``CampaignSettings.cond_target``).
         use_shipped: take a shipped design where every input matches.
     Returns:
         FourierTrajectory starting and ending at rest at ``q_start``.
