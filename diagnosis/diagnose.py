@@ -32,6 +32,7 @@ from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_repaired_run,
                                read_json, read_lifted)
 from qomni.ident.campaign import VALIDATION_STEP
+from qomni.ident.setpoint_lag import setpoint_lag
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
@@ -41,6 +42,7 @@ from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
+from .setpoint_timing import timing_by_setpoint
 from .problem import (Fit, MeasuredBase, Problem, cached_columns, counted_by_own_correlation, make_problem,
                       own_correlation_rows)
 from .simulate import simulate_channel
@@ -478,8 +480,13 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if unknown:
         raise ValueError(f"no hypothesis named {', '.join(sorted(unknown))} to withhold")
     signals, sheet, meta = _load_run(data_dir, model)
+    setpoint = setpoint_lag(signals, sheet.drive.cycle_time, sheet.drive.max_torque)
     data_run = {"status": meta.get("status", "not recorded"), "steps_used": signals.steps(),
-                "spikes": meta["spikes"]}
+                "spikes": meta["spikes"],
+                "setpoint_lag": None if setpoint is None else
+                {"value": setpoint.value, "std": setpoint.std, "cycles": setpoint.cycles, "unit": "s",
+                 "definition": "lag of the torque actual (0x6077) behind the torque set-point (0x6071), "
+                               "after the model's torque lag (docs/conventions.md, Torque timing)"}}
     lag = correlation_lag(sheet.drive.cycle_time)
     chans, steer = _channels_and_steering(signals, sheet, model)
     hold = None
@@ -550,6 +557,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if lifted_friction is not None:
         accepted.append(lifted_friction[0])
         accepted_fits.append(lifted_friction[1])
+    accepted = timing_by_setpoint(candidates, accepted, setpoint, sheet.drive.cycle_time)
     where = where_.breakdown(chans, lag)
     structured = where_.structured(where)
     unexplained = []
@@ -587,10 +595,11 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     if limited > TRACTION_VERDICT:
         verdict = (f"drives at their torque limit in {100 * limited:.0f} % of the rows (wheels may slip; "
                    f"those rows are not fitted): {verdict}")
-    final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted else base
-    simulation = _simulation(hp, model, base, final, accepted, sheet.geometry.r) if simulate else {}
+    final = fitting.solve(fp, model, combine(accepted_fits), None, lag, cache) if accepted_fits else base
+    in_model = [c for c in accepted if not c.measured]
+    simulation = _simulation(hp, model, base, final, in_model, sheet.geometry.r) if simulate else {}
     ref_chans = [] if ref_plain is None else ref_plain.channels
-    ref_sim = _simulation(ref_plain, model, base, final, accepted, sheet.geometry.r) \
+    ref_sim = _simulation(ref_plain, model, base, final, in_model, sheet.geometry.r) \
         if simulate and ref_plain is not None else {}
     base_delta = {n: {"delta": float(d), "relative": float(d / v) if v else None}
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}

@@ -258,6 +258,10 @@ class Candidate:
     from_model: Evaluation | None = None
     #: p-value of the effect's fitted level being zero (:func:`presence`); 1.0 when not tested.
     presence_p: float = 1.0
+    #: Named by a measurement outside the ground's fit (e.g. "set-point": the bus' torque set-point
+    #: against the torque actual), with ``magnitude`` from that measurement: its ``fit`` is the first
+    #: round's and is not added to the model (""): fitted on the ground's data.
+    measured: str = ""
 
     @property
     def name(self) -> str:

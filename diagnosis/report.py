@@ -96,6 +96,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "identifiability": c.identifiability,
         "physical": c.physical,
         "notes": c.notes,
+        "measured_by": c.measured or None,
     }
 
 

@@ -225,6 +225,24 @@ def test_heavy_steering_units_are_named_against_the_runs_own_twin_by_the_arcs(tm
     assert m_w["ci"][0] <= 12.0 <= m_w["ci"][1] and m_w["ci"][0] > 4.0
 
 
+@pytest.mark.slow
+def test_a_report_lag_beside_an_actuator_delay_is_told_apart_by_the_set_point(tmp_path):
+    """A 4 ms report lag beside an 8 ms actuator delay: the ground's data show their difference, a 4 ms
+    delay; the torque actual lags the master's set-point by the report lag alone (diagnosis/
+    setpoint_timing.py), so both are named with their sizes."""
+    from qomni.blind_suite import run_campaign
+
+    run = tmp_path / "timing"
+    run_campaign(run, {"torque_report_lag": {"lag": 0.004}, "actuator_delay": {"delay": 0.008}}, seed=38,
+                 quick=True)
+    gap = _diagnose_against_own_twin(run, run / "twin_gap")
+    named = {a["name"]: a for a in gap["accepted"]}
+    assert set(named) == {"torque_report_lag", "actuator_delay"}, gap["verdict"]
+    assert named["torque_report_lag"]["magnitude"] == pytest.approx(0.004, abs=1e-4)
+    assert named["actuator_delay"]["magnitude"] == pytest.approx(0.008, abs=1e-3)
+    assert gap["data_run"]["setpoint_lag"]["cycles"] == pytest.approx(2.0, abs=0.05)
+
+
 def test_a_hypothesis_to_withhold_must_be_in_the_library():
     from qomni.diagnosis.diagnose import diagnose
 
