@@ -24,6 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from qomni.ident.campaign import recorded_settings
+
 from .channels import ChannelData
 
 #: Segment boundaries of the two runs may differ by this fraction of a cycle (text round-off).
@@ -32,14 +34,25 @@ SEGMENT_TOLERANCE = 0.5
 
 def paired_runs(data_meta: dict, reference_meta: dict, cycle_time: float) -> bool:
     """Whether the reference run is the data's campaign run again: the same campaign ``settings``
-    (steps, excitation design, seed, durations) and the same ``segments`` (step names, modes, start and
-    end times within half a cycle) in both runs' ``metadata.json``.
+    (steps, excitation design, seed, durations; a setting one run does not record taken as what runs
+    drove before it was added, :func:`qomni.ident.campaign.recorded_settings`), the same planned
+    cond(Θ̂₁ᵀΘ̂₁) where both record it (a design procedure that changed since gives other trajectories
+    for the same settings), and the same ``segments`` (step names, modes, start and end times within
+    half a cycle) in both runs' ``metadata.json``.
 
     Args:
         data_meta, reference_meta: the two runs' ``metadata.json`` contents.
         cycle_time: the drives' cycle time T_s [s].
     """
-    if not data_meta.get("settings") or data_meta.get("settings") != reference_meta.get("settings"):
+    if not data_meta.get("settings") or not reference_meta.get("settings"):
+        return False
+    try:
+        if recorded_settings(data_meta["settings"]) != recorded_settings(reference_meta["settings"]):
+            return False
+    except (TypeError, ValueError):
+        return False
+    planned = [m.get("planned_condition_number") for m in (data_meta, reference_meta)]
+    if None not in planned and not math.isclose(float(planned[0]), float(planned[1]), rel_tol=1e-6):
         return False
     a, b = data_meta.get("segments") or [], reference_meta.get("segments") or []
     if not a or len(a) != len(b):

@@ -174,6 +174,19 @@ class CampaignSettings:
         return cls(**short)
 
 
+#: What a run that does not record a setting drove: one lane change, no arcs, the richness design.
+RECORDED_BEFORE = {"lane_changes": 1, "arc_duration": 0.0, "excitation": "richness"}
+
+
+def recorded_settings(recorded: dict) -> CampaignSettings:
+    """The settings a run drove, from its ``metadata.json`` ``settings``: a setting it does not record takes
+    :data:`RECORDED_BEFORE`'s value where that differs from the default, else the default (settings added
+    later default to what runs drove before them).
+
+    Raises: TypeError for a setting the campaign does not know, ValueError for one it refuses."""
+    return CampaignSettings(**{**RECORDED_BEFORE, **recorded})
+
+
 def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     """The four identification steps, the lane change and (``arc_duration`` > 0) the two arcs, designed
     from ``settings``.

@@ -123,7 +123,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         RunDirectoryError, TwinError, CampaignAborted: as the steps they come from.
     """
     from qomni.embedded import embedded_vehicle
-    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.ident.campaign import Campaign
 
     data_dir, cache = Path(data_dir), Path(cache)
     meta = read_json(data_dir / METADATA)
@@ -187,11 +187,10 @@ def _settings_of(meta: dict):
 
     Raises:
         TwinError: a recorded setting the campaign does not know, or one it refuses."""
-    from qomni.ident.campaign import CampaignSettings
+    from qomni.ident.campaign import recorded_settings
 
     try:
-        return CampaignSettings(**{"lane_changes": 1, "arc_duration": 0.0, "excitation": "richness",
-                                   **meta.get("settings", {})})
+        return recorded_settings(meta.get("settings", {}))
     except (TypeError, ValueError) as exc:
         raise TwinError(f"metadata.json settings: {exc}") from exc
 

@@ -8,7 +8,7 @@ from qomni.diagnosis.channels import ChannelData
 from qomni.diagnosis.paired import pair_channels, paired_runs
 
 TS = 0.002
-SETTINGS = {"seed": 7, "steps": ["steer_left", "straight"], "duration": 12.0}
+SETTINGS = {"seed": 7, "steer_duration": 12.0, "lane_changes": 2, "arc_duration": 10.0}
 SEGMENTS = [{"name": "rest", "k": 1, "t_start": 0.0, "t_end": 0.502},
             {"name": "steer_left", "k": 1, "t_start": 0.502, "t_end": 12.504}]
 
@@ -36,6 +36,22 @@ def test_runs_pair_only_where_the_reference_ran_the_datas_campaign():
     assert not paired_runs(data, {"settings": SETTINGS, "segments": SEGMENTS[::-1]}, TS)
     assert not paired_runs(data, {"settings": SETTINGS}, TS)
     assert not paired_runs({"segments": SEGMENTS}, {"segments": SEGMENTS}, TS)
+
+
+def test_a_run_recorded_before_a_setting_existed_pairs_with_a_twin_that_records_it():
+    """The twin records every setting; the data's run only those that existed then, and a setting added
+    later defaults to what runs drove before it. A setting the campaign does not know never pairs, nor
+    does a different planned cond (the design procedure changed for the same settings)."""
+    from qomni.ident.campaign import CampaignSettings, recorded_settings
+
+    twin = {"settings": vars(recorded_settings(SETTINGS)), "segments": SEGMENTS}
+    data = {"settings": SETTINGS, "segments": SEGMENTS}
+    assert twin["settings"] != SETTINGS and paired_runs(data, twin, TS)
+    assert vars(recorded_settings({})) != vars(CampaignSettings())          # an old run: one lane change
+    assert not paired_runs({"settings": {**SETTINGS, "retired": 1}, "segments": SEGMENTS}, twin, TS)
+    assert paired_runs({**data, "planned_condition_number": 18.3}, {**twin, "planned_condition_number": 18.3}, TS)
+    assert not paired_runs({**data, "planned_condition_number": 4.48}, {**twin, "planned_condition_number": 4.65},
+                           TS)
 
 
 def test_a_paired_torque_channel_keeps_what_the_twin_does_not_show_at_the_same_sample():
