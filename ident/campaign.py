@@ -180,8 +180,8 @@ RECORDED_BEFORE = {"lane_changes": 1, "arc_duration": 0.0, "excitation": "richne
 
 def recorded_settings(recorded: dict) -> CampaignSettings:
     """The settings a run drove, from its ``metadata.json`` ``settings``: a setting it does not record takes
-    :data:`RECORDED_BEFORE`'s value where that differs from the default, else the default (settings added
-    later default to what runs drove before them).
+    :data:`RECORDED_BEFORE`'s value where it has one, else the default (the other settings added since
+    default to what runs drove before them).
 
     Raises: TypeError for a setting the campaign does not know, ValueError for one it refuses."""
     return CampaignSettings(**{**RECORDED_BEFORE, **recorded})
