@@ -146,22 +146,37 @@ def test_each_optimised_step_stays_in_its_limits_rests_at_both_ends_and_keeps_no
         assert near.mean() < 0.02, step.name
 
 
-def test_the_shipped_designs_are_what_the_design_gives_afresh_and_the_design_is_deterministic():
+def test_the_shipped_designs_are_the_campaigns_and_those_it_drives_are_what_the_design_gives_afresh(monkeypatch):
     shipped = json.loads(design.SHIPPED_DESIGNS.read_text())
-    fresh = design.default_designs()
-    # steering (both sides share one), and a straight and a rotation for each chassis cap the search tried
-    assert fresh.keys() == shipped.keys() and len(fresh) >= 3 and len(fresh) % 2 == 1
-    for key, entry in fresh.items():
+    looked_up = []
+
+    class Logged(dict):
+        def get(self, key, default=None):
+            looked_up.append(key)
+            return super().get(key, default)
+
+    monkeypatch.setattr(design, "_shipped", lambda: Logged(shipped))
+    steps = {s.name: s for s in plan(DataSheet.load(), MIN_COND)}
+    # the steering design (both sides share it), and a straight and a rotation for each chassis cap the
+    # search tries: every one the planning looks up is shipped, and nothing else is
+    assert set(looked_up) == set(shipped) and len(shipped) % 2 == 1
+    for name in IDENTIFICATION_STEPS[1:]:
+        ((_, trajectory),) = steps[name].trajectories.items()
+        (key,) = [k for k, d in shipped.items() if len(d["a"]) == trajectory.a.size
+                  and np.allclose(d["a"], trajectory.a) and np.allclose(d["b"], trajectory.b)]
         inputs = json.loads(key)
-        old, new = shipped[key], entry
-        assert new["periods"] == old["periods"] and new["omega_f"] == pytest.approx(old["omega_f"])
-        crits = []
+        inputs.pop("version")
+        inputs.update({k: int(inputs[k]) for k in ("n_harmonics", "evaluations")})
+        a, b, periods, omega = design._design.__wrapped__(**inputs)
+        old, new = shipped[key], {"a": a, "b": b, "periods": periods, "omega_f": omega}
+        assert new["periods"] == old["periods"] and new["omega_f"] == pytest.approx(old["omega_f"]), name
+        measures = []
         for d in (old, new):
             tr = design.FourierTrajectory.from_start(d["omega_f"], np.array(d["a"]), np.array(d["b"]),
                                                     periods=d["periods"])
             _, qd, qdd = tr.evaluate(np.arange(0.0, tr.duration, 2e-3))
-            crits.append(design.pair_condition(qd, qdd, inputs["threshold"])[0])
-        assert crits[1] == pytest.approx(crits[0], rel=0.03)
+            measures.append((design.pair_condition(qd, qdd, inputs["threshold"])[0], np.sqrt(np.mean(qdd ** 2))))
+        assert measures[1] == pytest.approx(measures[0], rel=0.03), name
     args = dict(duration=12.0, q_min=-0.6, q_max=0.6, qd_max=2.5, qdd_max=10.0, q_start=0.0, threshold=0.2,
                 n_harmonics=8, slow_factor=1.25, lost_weight=1.0, evaluations=800, margin=0.995)
     assert design._design.__wrapped__(**args) == design._design.__wrapped__(**args)
