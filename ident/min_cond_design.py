@@ -131,6 +131,15 @@ def near_reversal(qd: np.ndarray, slow: float, reach: int) -> np.ndarray:
     return d <= reach
 
 
+def _ramp(v0: float, v1: float, accel: float, near: float, gentle: float) -> list[tuple[float, float, float]]:
+    """(duration, v_start, v_end) segments of a velocity ramp from v0 to v1: at ``gentle`` while
+    |q̇| < ``near``, else at ``accel``."""
+    points = [v0] + [e for e in (-near, near) if min(v0, v1) < e < max(v0, v1)] + [v1]
+    points.sort(reverse=v0 > v1)
+    return [(abs(b - a) / (gentle if max(abs(a), abs(b)) <= near * (1 + 1e-12) else accel), a, b)
+            for a, b in zip(points[:-1], points[1:])]
+
+
 def two_level_velocity(t: np.ndarray, period: float, slow: float, fast: float, accel: float, near: float,
                        gentle: float, pause: float = 0.1) -> np.ndarray:
     """Velocity of the two-level start profile at ``t`` (one base period, (N,) → (N,)).
@@ -143,14 +152,10 @@ def two_level_velocity(t: np.ndarray, period: float, slow: float, fast: float, a
     Raises: ValueError where the period is too short for the ramps and the slow legs.
     """
     def leave_rest(v: float) -> list[tuple[float, float, float]]:
-        """(duration, v_start, v_end) segments from rest to ``v``."""
-        if abs(v) <= near:
-            return [(abs(v) / gentle, 0.0, v)]
-        edge = math.copysign(near, v)
-        return [(near / gentle, 0.0, edge), ((abs(v) - near) / accel, edge, v)]
+        return _ramp(0.0, v, accel, near, gentle)
 
     def come_to_rest(v: float) -> list[tuple[float, float, float]]:
-        return [(d, v1, v0) for d, v0, v1 in reversed(leave_rest(v))]
+        return _ramp(v, 0.0, accel, near, gentle)
 
     def legs(f: float) -> tuple[list, float, float]:
         ramps = [leave_rest(slow), come_to_rest(slow), leave_rest(-f), come_to_rest(-f),
@@ -195,43 +200,35 @@ def burst_velocity(t: np.ndarray, period: float, slow: float, peak: float, accel
         raise ValueError(f"bursts must be >= 1, got {bursts}")
 
     def ramp(v0: float, v1: float) -> list[tuple[float, float, float]]:
-        """(duration, v_start, v_end) segments from v0 to v1, gentle while |q̇| < near."""
-        points = [v0] + [e for e in (-near, near) if min(v0, v1) < e < max(v0, v1)] + [v1]
-        points.sort(reverse=v0 > v1)
-        return [(abs(b - a) / (gentle if max(abs(a), abs(b)) <= near * (1 + 1e-12) else accel), a, b)
-                for a, b in zip(points[:-1], points[1:])]
+        return _ramp(v0, v1, accel, near, gentle)
 
     def burst(sign: float) -> list[tuple[float, float, float]]:
         return ramp(sign * slow, sign * peak) + ramp(sign * peak, sign * slow)
 
-    plateau = None                     # placeholder of a slow plateau, sign given by the group
+    # segments (duration, v_start, v_end); a slow plateau's duration (None) is set below by its sign
     groups = [(-1.0, (bursts + 1) // 2), (1.0, bursts), (-1.0, bursts // 2)]
-    body: list = ramp(0.0, -slow)
+    body = ramp(0.0, -slow)
     for i, (sign, n) in enumerate(groups):
+        plateau = (None, sign * slow, sign * slow)
         for _ in range(n):
-            body += [(plateau, sign)] + burst(sign)
-        body.append((plateau, sign))
+            body += [plateau] + burst(sign)
+        body.append(plateau)
         if i + 1 < len(groups):
             body += ramp(sign * slow, -sign * slow)
     body += ramp(-slow, 0.0)
-    ramps = [seg for seg in body if seg[0] is not None and len(seg) == 3]
+    ramps = [seg for seg in body if seg[0] is not None]
     free = period - 2 * pause - sum(d for d, _, _ in ramps)
     way = sum(d * (v0 + v1) / 2 for d, v0, v1 in ramps)
-    n_minus = sum(1 for seg in body if len(seg) == 2 and seg[1] < 0)
-    n_plus = sum(1 for seg in body if len(seg) == 2 and seg[1] > 0)
+    n_minus = sum(1 for d, v, _ in body if d is None and v < 0)
+    n_plus = sum(1 for d, v, _ in body if d is None and v > 0)
     # n_minus d_minus + n_plus d_plus = free and slow (n_plus d_plus − n_minus d_minus) + way = 0
     d_plus = (free - way / slow) / (2 * n_plus)
     d_minus = (free - n_plus * d_plus) / n_minus
     if free <= 0 or d_plus <= 0 or d_minus <= 0:
         raise ValueError(f"a base period of {period:.3g} s cannot hold {bursts} bursts each way")
-    knots = [(pause, 0.0, 0.0)]
-    for seg in body:
-        if len(seg) == 2:
-            v = seg[1] * slow
-            knots.append((d_plus if seg[1] > 0 else d_minus, v, v))
-        else:
-            knots.append(seg)
-    knots.append((pause, 0.0, 0.0))
+    knots = ([(pause, 0.0, 0.0)]
+             + [((d_plus if v > 0 else d_minus), v, v1) if d is None else (d, v, v1) for d, v, v1 in body]
+             + [(pause, 0.0, 0.0)])
     edges = np.concatenate([[0.0], np.cumsum([k[0] for k in knots])])
     values = [k[1] for k in knots] + [0.0]
     return np.interp(np.mod(t, period), edges, values)
@@ -264,7 +261,11 @@ class _StepGrid:
         self.p, self.v, self.a = (m @ self.null for m in _basis(n_harmonics, self.omega, self.t))
         self.limits = (q_max - q_start, q_start - q_min, qd_max, qdd_max)
         self.threshold, self.slow = threshold, slow
-        self.reach = int(math.ceil(REVERSAL_REACH / filtering.OMEGA_G * GRID_RATE))
+        reach_time = REVERSAL_REACH / filtering.OMEGA_G
+        self.reach = int(math.ceil(reach_time * GRID_RATE))
+        #: ramp rate through |q̇| < threshold: the threshold reached no sooner than reach_time after a
+        #: reversal or a start from rest
+        self.gentle = 0.9 * threshold / reach_time
 
     def project(self, velocity: np.ndarray) -> np.ndarray:
         """z whose velocity is the least-squares fit of ``velocity`` (sampled on ``t``)."""
@@ -296,9 +297,8 @@ def _design_periods(periods: int, duration: float, q_min: float, q_max: float, q
     where a base period cannot hold the two-level profile."""
     slow = slow_factor * threshold
     grid = _StepGrid(periods, duration, q_min, q_max, qd_max, qdd_max, q_start, threshold, n_harmonics, slow)
-    reach_time = REVERSAL_REACH / filtering.OMEGA_G
     z0 = grid.project(two_level_velocity(grid.t, grid.period, slow, qd_max, 0.8 * qdd_max, near=threshold,
-                                         gentle=0.9 * threshold / reach_time))
+                                         gentle=grid.gentle))
 
     def objective(z):
         cond, kept, near, _ = grid.measures(z)
@@ -315,8 +315,7 @@ def _start_profiles(grid: _StepGrid, slow_factor: float, qd_max: float, qdd_max:
     """The capped design's start velocities on ``grid``: the two-level profile and :func:`burst_velocity`
     with 1–3 bursts, over slow levels, peaks and ramp accelerations (:data:`START_SLOW_SCALES`,
     :data:`START_PEAKS`, :data:`START_RAMPS`); those a base period cannot hold are left out."""
-    threshold = grid.threshold
-    gentle = 0.9 * threshold / (REVERSAL_REACH / filtering.OMEGA_G)
+    threshold, gentle = grid.threshold, grid.gentle
     for scale in START_SLOW_SCALES:
         slow = scale * slow_factor * threshold
         for peak in START_PEAKS:
@@ -342,12 +341,14 @@ def _design_capped(first_periods: int, duration: float, q_min: float, q_max: flo
     start profile of any period count stays within it."""
     slow = slow_factor * threshold
 
-    def objective(z, grid):
-        cond, kept, near, accel = grid.measures(z)
+    def criterion(cond: float, kept: float, near: float, accel: float) -> float:
         if not math.isfinite(cond) or accel <= 0:
             return 50.0
         return (-math.log(accel / qdd_max) + CAP_WEIGHT * max(0.0, math.log(cond / cond_cap))
                 + lost_weight * (1.0 - kept) + REVERSAL_WEIGHT * near)
+
+    def objective(z, grid):
+        return criterion(*grid.measures(z))
 
     best = None                       # (objective, grid, z)
     feasible = None                   # (RMS acceleration, grid, z) of the best start within the cap
@@ -356,10 +357,11 @@ def _design_capped(first_periods: int, duration: float, q_min: float, q_max: flo
                          slow)
         for start in _start_profiles(grid, slow_factor, qd_max, qdd_max):
             z = grid.project(start)
-            value = objective(z, grid)
+            measures = grid.measures(z)
+            value = criterion(*measures)
             if best is None or value < best[0]:
                 best = (value, grid, z)
-            cond, _, _, accel = grid.measures(z)
+            cond, _, _, accel = measures
             if cond <= cond_cap and (feasible is None or accel > feasible[0]):
                 feasible = (accel, grid, z)
     if best is None:
