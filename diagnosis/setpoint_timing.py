@@ -87,7 +87,7 @@ def timing_by_setpoint(candidates: list, accepted: list, setpoint, cycle_time: f
             c = _measured(c, delay, delay_sd, f"{motion}, and {bus}: the torque acts {delay * ms:.2f} ± "
                                               f"{delay_sd * ms:.2f} ms after the set-point", named_here=False)
         out.append(c)
-    source = named.get(LAG) or first.get(LAG)
+    source = first.get(LAG)
     if LAG not in named and source is not None:
         out.append(_measured(source, setpoint.value, setpoint.std, f"named by the set-point: {bus}; {motion}"))
     source = first.get(DELAY)

@@ -51,7 +51,8 @@ class SetpointLag:
 
 
 def _fit(r: np.ndarray, c: np.ndarray, m: int, keep: np.ndarray):
-    """Per drive: (SSE, a's numerator pieces) of r(t) ≈ g c(t − m) + h c(t − m − 1), h = g·a."""
+    """Per drive, the least-squares fit of r(t) ≈ g c(t − m) + h c(t − m − 1) (h = g·a, shifts in rows)
+    over the kept rows: (rows, X (n, 2), (g, h), residuals (n,))."""
     n = r.shape[0]
     rows = np.arange(m + 1, n)
     rows = rows[keep[rows] & keep[rows - m] & keep[rows - m - 1]]
@@ -60,7 +61,7 @@ def _fit(r: np.ndarray, c: np.ndarray, m: int, keep: np.ndarray):
         X = np.column_stack([c[rows - m, i], c[rows - m - 1, i]])
         y = r[rows, i]
         coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-        out.append((rows, X, y, coef))
+        out.append((rows, X, coef, y - X @ coef))
     return out
 
 
@@ -86,15 +87,13 @@ def setpoint_lag(signals: Signals, cycle_time: float, max_torque: float) -> Setp
         fits = _fit(r, c, m, keep)
         if min(f[0].size for f in fits) < MIN_ROWS or any(np.ptp(f[1][:, 0]) == 0 for f in fits):
             return None
-        sse = sum(float(np.sum((f[2] - f[1] @ f[3]) ** 2)) for f in fits)
+        sse = sum(float(f[3] @ f[3]) for f in fits)
         if best is None or sse < best[0]:
             best = (sse, m, fits)
     _, m, fits = best
-    # a = h / (g + h) per drive, pooled by the drives' set-point energy; σ by the delta method
-    values, weights, variances, residuals = [], [], [], []
-    for rows, X, y, (g, h) in fits:
-        e = y - X @ np.array([g, h])
-        residuals.append(e)
+    # a = h / (g + h) per drive, σ by the delta method; the drives pooled by inverse variance
+    values, weights = [], []
+    for _, X, (g, h), e in fits:
         s2 = float(e @ e) / max(e.size - 2, 1)
         cov = s2 * np.linalg.inv(X.T @ X)
         total = g + h
@@ -103,14 +102,13 @@ def setpoint_lag(signals: Signals, cycle_time: float, max_torque: float) -> Setp
         a = h / total
         grad = np.array([-h, g]) / total ** 2
         values.append(a)
-        variances.append(float(grad @ cov @ grad))
-        weights.append(1.0 / max(variances[-1], 1e-300))
+        weights.append(1.0 / max(float(grad @ cov @ grad), 1e-300))
     if not values:
         return None
     w = np.array(weights)
     a = float(np.dot(w, values) / w.sum())
     var = 1.0 / float(w.sum())
-    e = np.concatenate(residuals)
+    e = np.concatenate([f[3] for f in fits])
     rho = float(np.corrcoef(e[:-1], e[1:])[0, 1]) if e.size > 2 and np.std(e) > 0 else 0.0
     inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else 1.0
     cycles = m + min(max(a, 0.0), 1.0)
