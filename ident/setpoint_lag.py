@@ -14,8 +14,10 @@ Estimate. For each drive i and a whole number m of cycles, the least-squares fit
 
 over the rows where no set-point is within 1 % of the torque limit (the drive clips what it reports
 there); the lag is (m + a)·T_s of the m (0 … :data:`MAX_CYCLES` − 1) with the least residual over the four
-drives together, a fitted jointly as g_i·a (linear). Its σ is the least-squares σ of a, scaled by
-√((1 + ρ)/(1 − ρ)) for the residual's lag-1 autocorrelation ρ. All torques motor side (N m).
+drives together, a fitted jointly as g_i·a (linear). Its σ is the delta method's on each drive's
+Newey–West covariance of (g_i, g_i·a) (:func:`qomni.ident.least_squares.newey_west_cov`, bandwidth
+L = ⌊4 (n/100)^{2/9}⌋ rows, Newey & West 1994), the drives pooled by inverse variance: the report's
+noise need not be white. All torques motor side (N m).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .least_squares import newey_west_cov
 from .recording import Signals
 
 #: The search covers lags of 0 to MAX_CYCLES cycles.
@@ -32,6 +35,11 @@ MAX_CYCLES = 7
 CLIP_SHARE = 0.99
 #: Fewest usable rows per drive for an estimate.
 MIN_ROWS = 200
+
+
+def hac_bandwidth(rows: int) -> int:
+    """Newey–West's rule-of-thumb bandwidth ⌊4 (n/100)^{2/9}⌋ for n rows (Newey & West 1994), at least 1."""
+    return max(1, int(4.0 * (rows / 100.0) ** (2.0 / 9.0)))
 
 
 @dataclass(frozen=True)
@@ -93,9 +101,8 @@ def setpoint_lag(signals: Signals, cycle_time: float, max_torque: float) -> Setp
     _, m, fits = best
     # a = h / (g + h) per drive, σ by the delta method; the drives pooled by inverse variance
     values, weights = [], []
-    for _, X, (g, h), e in fits:
-        s2 = float(e @ e) / max(e.size - 2, 1)
-        cov = s2 * np.linalg.inv(X.T @ X)
+    for rows, X, (g, h), e in fits:
+        cov = newey_west_cov(X, e, np.zeros(rows.size), rows, hac_bandwidth(rows.size))
         total = g + h
         if total == 0:
             continue
@@ -109,10 +116,8 @@ def setpoint_lag(signals: Signals, cycle_time: float, max_torque: float) -> Setp
     a = float(np.dot(w, values) / w.sum())
     var = 1.0 / float(w.sum())
     e = np.concatenate([f[3] for f in fits])
-    rho = float(np.corrcoef(e[:-1], e[1:])[0, 1]) if e.size > 2 and np.std(e) > 0 else 0.0
-    inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else 1.0
     cycles = m + min(max(a, 0.0), 1.0)
-    return SetpointLag(cycles * cycle_time, math.sqrt(var) * cycle_time * inflate, cycles,
+    return SetpointLag(cycles * cycle_time, math.sqrt(var) * cycle_time, cycles,
                        min(f[0].size for f in fits), float(np.sqrt(np.mean(e ** 2))))
 
 
