@@ -559,7 +559,6 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         accepted_fits.append(lifted_friction[1])
     accepted = timing_by_setpoint(candidates, accepted, setpoint, sheet.drive.cycle_time)
     where = where_.breakdown(chans, lag)
-    structured = where_.structured(where)
     unexplained = []
     if not accepted:
         for ch in chans:
