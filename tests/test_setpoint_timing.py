@@ -51,8 +51,7 @@ def test_clipped_set_points_are_left_out_and_a_recording_too_short_or_without_th
     assert setpoint_lag(replace(s, motor_torque_cmd=np.zeros_like(s.motor_torque_cmd)), T_S, LIMIT) is None
 
 
-
-def test_the_lag_s_sigma_holds_for_coloured_report_noise():
+def test_the_lags_sigma_holds_for_coloured_report_noise():
     """A real drive's torque actual carries its current loop's filtered noise, not white noise: over 40
     seeds of noise smoothed over a few cycles the lag's z-scores spread as a standard normal's (the
     Newey–West σ), where a σ for white noise (scaled for the lag-1 autocorrelation alone) would be twice
@@ -64,6 +63,7 @@ def test_the_lag_s_sigma_holds_for_coloured_report_noise():
         m = setpoint_lag(replace(s, motor_torque=s.motor_torque + 0.01 * coloured / coloured.std()), T_S, LIMIT)
         z.append((m.value - 1.5 * T_S) / m.std)
     assert 0.7 < np.std(z) < 1.5 and abs(np.mean(z)) < 1.0
+
 
 @dataclass
 class _Hyp:
