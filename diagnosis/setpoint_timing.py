@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from .hypotheses.base import Magnitude
+from .hypotheses.base import Magnitude, _ci
 
 #: z of the set-point lag (and of the delay derived from it) for naming: p = 10⁻³ two-sided.
 SETPOINT_Z = 3.29
@@ -41,8 +41,7 @@ def _sd(magnitude: Magnitude) -> float:
 def _measured(cand, value: float, sd: float, note: str, named_here: bool = True):
     """``cand`` with the measured magnitude and a note; ``named_here``: named by the measurement (its fit
     stays out of the model), else an effect the ground's fit named, re-sized."""
-    return replace(cand, magnitude=replace(cand.magnitude, value=value,
-                                           ci=(value - 1.96 * sd, value + 1.96 * sd)),
+    return replace(cand, magnitude=replace(cand.magnitude, value=value, ci=_ci(value, sd)),
                    significant=True, measured="set-point" if named_here else cand.measured,
                    notes=[*cand.notes, note])
 
