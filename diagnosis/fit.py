@@ -161,9 +161,16 @@ def base_prior_std(model) -> np.ndarray:
     return PRIOR_STD_FACTOR * std
 
 
-def f_test(base: Fit, ext: Fit, extra_dof: int) -> float:
-    """p-value of the RSS reduction (F test with n/L effective rows)."""
-    q = len(ext.theta) + extra_dof
+def f_test(base: Fit, ext: Fit, extra_dof: int, tested: int | None = None) -> float:
+    """p-value of the RSS reduction from ``base`` to ``ext`` (F test with n/L effective rows).
+
+    ``tested``: the coefficients ``ext`` frees beyond ``base`` (default: all of ``ext.theta``); a further
+    effect fitted beside accepted ones, which are free in both fits, frees only its own. Counting the
+    accepted effects' coefficients too would divide the reduction by too many degrees of freedom: on
+    noise the test then rejects half as often as its level (2.5 % at 5 %), and a payload beside an
+    incline and a rolling resistance is tested as 5 coefficients where its fit frees 2.
+    ``extra_dof``: profiled non-linear parameters."""
+    q = (len(ext.theta) if tested is None else int(tested)) + extra_dof
     dof = max(ext.n_eff - ext.n_params - extra_dof, 1.0)
     if ext.rss <= 0:
         return 0.0
@@ -306,21 +313,20 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     held = len(h.parameters) if hold_tail is None else hold_tail
     test_base = base if theta0 is None else solve(fit_problem, model, h, best.nonlinear, lag, cache,
                                                   theta0=theta0, held=held)
-    p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1)
+    p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1, tested=held)
     evaluation = evaluate(hold_problem, test_base, best, cache)
     added = None if test_base is base else evaluate(hold_problem, base, best, cache)
-    tail = len(h.parameters) if hold_tail is None else hold_tail
     # With the base parameters free (a model identified on these data) the base fit is the model
     # re-identified on them, and adding the effect re-fits the parameters too: the shrink is the base
     # fit's. With the parameters held as identified, an effect they absorbed in part would be added on
     # top of what they already hold.
-    from_model = added_to_identified(hold_problem, best, tail, (added or evaluation).affected, cache) \
+    from_model = added_to_identified(hold_problem, best, held, (added or evaluation).affected, cache) \
         if fit_problem.base_prior else (added or evaluation)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
     physical = plausible(h, best.theta)
     cand = Candidate(h, best, magnitude, p_value, evaluation, ident_check, physical, added_to_model=added,
-                     from_model=from_model, presence_p=presence(best, tail))
+                     from_model=from_model, presence_p=presence(best, held))
     if best.theta0 is not None and np.any(best.theta0 != 0):
         cand.notes.append("the model's own run already shows a level "
                           + ", ".join(f"{v:.3g}" for v in best.theta0) + " of it; tested beyond that")

@@ -519,3 +519,43 @@ def test_level_beside_step_levels_is_taken_beyond_the_reference_level():
     beyond_reference, _ = fitting.level_beside_step_levels(data, reference, MODEL, LEVEL, None, 1)
     assert beyond_zero > 10
     assert abs(beyond_reference) < 3
+
+
+def test_a_further_effect_is_tested_against_the_noise_the_accepted_effects_leave():
+    # Channel a holds an accepted effect A at 20 × the noise and a further effect B; channel b is noise.
+    # Weighted by the model's own residual (the first round's weights) A's term counts as noise in a and
+    # B's test there has little power; beside A (``_beside``: weights from what the model with A leaves)
+    # it is tested against the noise, and under the null (no B) its F test holds its level: the F test
+    # counts B's coefficient alone (``tested``), A's being free in both fits.
+    from qomni.diagnosis.diagnose import _beside, combine
+
+    def col(name):
+        return lambda ch, _: getattr(ch, name)[:, None]
+
+    A, B = Hypothesis("a_effect", "", ("k",), col("a")), Hypothesis("b_effect", "", ("k",), col("b"))
+
+    def further_p(seed, planted_b):
+        rng = np.random.default_rng(300 + seed)
+        chans = [_channel("a", rng), _channel("b", rng)]
+        for ch in chans:
+            ch.a, ch.b = rng.normal(size=N_ROWS), np.sin(np.arange(N_ROWS) / 9.0 + rng.uniform(0, 6))
+            ch.residual = rng.normal(size=N_ROWS)
+        chans[1].a = chans[1].b = np.zeros(N_ROWS)          # both effects act in channel a only
+        chans[0].residual += 20.0 * chans[0].a + planted_b * chans[0].b
+        fit_p, hold_p = _alternating_windows(chans)
+        fit_p.weights = hold_p.weights = np.array(
+            [1 / np.sqrt(np.mean(c.residual[r] ** 2)) for c, r in zip(chans, fit_p.fit_rows)])
+        accepted = fitting.solve(fit_p, MODEL, A, None, 1)
+        first_round = fitting.f_test(accepted, fitting.solve(fit_p, MODEL, combine([accepted], B), None, 1), 0,
+                                     tested=1)
+        fit_b, _, base = _beside(fit_p, hold_p, MODEL, [accepted], 1, {})
+        assert fit_b.weights[0] == pytest.approx(1.0, rel=0.15) and fit_b.weights[1] == pytest.approx(1.0, rel=0.15)
+        ext = fitting.solve(fit_b, MODEL, combine([accepted], B), None, 1)
+        return first_round, fitting.f_test(base, ext, 0, tested=1), fitting.f_test(base, ext, 0)
+
+    present = np.array([further_p(s, 0.5) for s in range(20)])
+    assert np.median(present[:, 0]) > 0.05 and np.median(present[:, 1]) < 1e-3
+    null = np.array([further_p(s, 0.0)[1:] for s in range(20, 220)])
+    assert 0.02 <= np.mean(null[:, 0] < 0.05) <= 0.09 and 0.35 <= np.median(null[:, 0]) <= 0.65
+    # counted with A's coefficient as if it were tested too, the same reduction reads far too little
+    assert np.median(null[:, 1]) > 0.75

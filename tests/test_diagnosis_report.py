@@ -159,3 +159,13 @@ def test_equivalent_explanations_are_the_significant_ones_inside_the_accepted_in
     refit = cand("incline", 0.77, (0.7, 0.85))              # its joint refit in forward selection
     found = equivalents([rl, fl, second, weak, rr], [rl, refit])
     assert found == {"tce rl": [fl], "incline": [fl]}
+
+
+def test_a_further_effects_coefficients_are_its_own_not_the_accepted_ones():
+    # forward selection fits a further effect jointly with the accepted ones: θ = (accepted…, own…)
+    from qomni.diagnosis.report import candidate_json
+    further = _candidate("payload", "lane_change/x_ch", (0.75, 0.86), 2e-31, True, 0.0)
+    further.hypothesis = Hypothesis("payload", "", ("m_x_c", "m_y_c"), lambda ch, nl: None)
+    further.fit = Fit(further.fit.hypothesis, None, np.array([0.0059, -0.0136, 0.0178, 33.2, 33.7]), np.eye(5),
+                      np.zeros(10), {}, 1.0, 100.0, 15)
+    assert candidate_json(further, 3)["coefficients"] == {"m_x_c": 33.2, "m_y_c": 33.7}
