@@ -559,3 +559,23 @@ def test_a_further_effect_is_tested_against_the_noise_the_accepted_effects_leave
     assert 0.02 <= np.mean(null[:, 0] < 0.05) <= 0.09 and 0.35 <= np.median(null[:, 0]) <= 0.65
     # counted with A's coefficient as if it were tested too, the same reduction reads far too little
     assert np.median(null[:, 1]) > 0.75
+
+
+def test_beside_accepted_effects_only_the_torque_channels_are_weighted_again():
+    # what an accepted wheel radius leaves of a kinematic channel is creep and drift, not the noise its fixed
+    # correlation length counts: that channel keeps the first round's weight
+    from qomni.diagnosis.diagnose import _beside
+
+    rng = np.random.default_rng(41)
+    torque, kinematic = _channel("rotation/gamma_ch", rng), _channel("rotation/rolling_1", rng)
+    kinematic.kind, kinematic.context = "rolling", NS(k=3, st=NS(cycle_time=0.004))
+    for ch in (torque, kinematic):
+        ch.a = rng.normal(size=N_ROWS)
+        ch.residual = 20.0 * ch.a + rng.normal(size=N_ROWS)
+    A = Hypothesis("a_effect", "", ("k",), lambda ch, _: ch.a[:, None])
+    fit_p, hold_p = _alternating_windows([torque, kinematic])
+    fit_p.weights = hold_p.weights = np.full(2, 1 / 20.0)
+    accepted = fitting.solve(fit_p, MODEL, A, None, 1)
+    fit_b, hold_b, _ = _beside(fit_p, hold_p, MODEL, [accepted], 1, {})
+    assert fit_b.weights[0] == pytest.approx(1.0, rel=0.15) and hold_b.weights[0] == fit_b.weights[0]
+    assert fit_b.weights[1] == hold_b.weights[1] == 1 / 20.0
