@@ -692,7 +692,7 @@ def fold(model: IdentificationResult, final: Fit, accepted: list, r: float):
         if not rule:
             rest.append(c)
             continue
-        theta = dict(zip(c.hypothesis.parameters, c.fit.theta[-len(c.hypothesis.parameters):]))
+        theta = c.coefficients
         for name, (coef, scale) in rule.items():
             p[P1_NAMES.index(name)] += float(theta[coef]) * scale(p, r)
     return p, rest

@@ -279,6 +279,14 @@ class Candidate:
         """The held-out before/after of adding the effect to the model (``added_to_model``)."""
         return self.added_to_model if self.added_to_model is not None else self.evaluation
 
+    @property
+    def coefficients(self) -> dict[str, float]:
+        """The hypothesis' own coefficients by parameter name. A further effect's fit is the joint fit
+        with the accepted effects in the model, whose coefficients lead θ: its own are the last ones."""
+        names = self.hypothesis.parameters
+        theta = np.asarray(self.fit.theta, dtype=float)
+        return dict(zip(names, theta[len(theta) - len(names):].tolist()))
+
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
                    h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,

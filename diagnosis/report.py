@@ -66,14 +66,6 @@ def _base_parameters(d: Diagnosis) -> str:
     return text
 
 
-def own_coefficients(c: Candidate) -> dict:
-    """The hypothesis' own coefficients, by parameter name. A further effect's fit is the joint fit with the
-    accepted effects in the model, whose coefficients lead θ: its own are the last ones."""
-    names = c.hypothesis.parameters
-    theta = np.asarray(c.fit.theta, dtype=float)
-    return dict(zip(names, theta[len(theta) - len(names):].tolist()))
-
-
 def candidate_json(c: Candidate, rank: int) -> dict:
     m = c.magnitude
     ev = c.from_model
@@ -100,7 +92,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
                                       "shrink": s.shrink} for s in ev.channels},
         "nonlinear_parameter": None if c.fit.nonlinear is None else
         {"value": c.fit.nonlinear, "unit": c.hypothesis.nonlinear_unit},
-        "coefficients": own_coefficients(c),
+        "coefficients": c.coefficients,
         "identifiability": c.identifiability,
         "physical": c.physical,
         "notes": c.notes,
