@@ -345,8 +345,7 @@ def _beside(fp: Problem, hp: Problem, model: IdentificationResult, fits: list[Fi
     if not fits:
         return fp, hp, fitting.solve(fp, model, None, None, lag, cache)
     base = fitting.solve(fp, model, combine(fits), None, lag, cache)
-    again = fitting.reweighted(fp, base, lag, cache)
-    fp = replace(fp, weights=np.where([ch.kind == "torque" for ch in fp.channels], again.weights, fp.weights))
+    fp = fitting.reweighted(fp, base, lag, cache, kinds=("torque",))
     weight = {ch.name: w for ch, w in zip(fp.channels, fp.weights)}
     hp = replace(hp, weights=np.array([weight.get(ch.name, 0.0) if w else 0.0
                                        for ch, w in zip(hp.channels, hp.weights)]))

@@ -437,7 +437,8 @@ def level_beside_step_levels(problem: Problem, reference: Problem | None, model:
     return coefficient_z(fit, 0), float(math.sqrt(fit.theta_cov[0, 0]))
 
 
-def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None) -> Problem:
+def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None,
+               kinds: tuple[str, ...] | None = None) -> Problem:
     """The same problem with every channel weighted by 1/(σ_c √L_c), σ_c the RMS of what ``fit`` leaves
     of the channel's residual on its fit rows: the second step of feasible weighted least squares.
 
@@ -452,11 +453,13 @@ def reweighted(problem: Problem, fit: Fit, lag: int, cache: dict | None = None) 
         fit: its solution; what it leaves of a channel is :func:`.evaluation.predicted_residual` on
             the fit rows (its hypothesis' columns with the full θ, θ₀ included).
         lag: rows of the filter's correlation (:func:`.problem.channel_lag`).
+        kinds: only channels of these kinds (``ChannelData.kind``: "torque", "kinematic", "rolling") are
+            weighted again, the others keep their weight; None: every channel.
     """
     weights = problem.weights.copy()
     for i, ch in enumerate(problem.channels):
         rows = problem.fit_rows[i]
-        if not rows.any() or weights[i] == 0:
+        if not rows.any() or weights[i] == 0 or (kinds is not None and ch.kind not in kinds):
             continue
         rms = float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
         if rms > 0:
