@@ -304,8 +304,25 @@ MISALIGNMENT_STEP = 1e-4
 #: Steering sensor LSBs (2π/2¹⁴ rad each) by which a side's median angle must miss the mode's angle for
 #: the step's rolling channels to get that side's misalignment column: 4 LSB ≈ 1.5 mrad. Steering
 #: stiction leaves 1.9–4.2 mrad (Stribeck, breakaway twice d_c); every other effect and the ideal vehicle
-#: at most 2 LSB.
+#: at most 2 LSB at the default steering bandwidth (a 20 ms actuator delay, at the bandwidth lowered for
+#: it, 17 LSB). Also the bar of the Stribeck placement's static reading of the steering joints
+#: (:func:`qomni.diagnosis.hypotheses.stribeck.steering_held_off`).
 MISALIGNMENT_LSB = 4
+
+
+def steering_offset(ctx: StepContext) -> np.ndarray:
+    """(2,) rad: the median measured steering angle (left, right) over the step's kept rows minus the
+    mode's angle; meaningful in the steps whose mode holds the steering at fixed angles
+    (``ROLLING_STEPS``)."""
+    return np.median(ctx.st.q[ctx.keep, 3:5], axis=0) - kinematics.mode_alpha(ctx.st.k, ctx.sheet.geometry)
+
+
+def held_off_sides(ctx: StepContext) -> list[int]:
+    """The sides (0 left, 1 right) whose steering the step holds ``MISALIGNMENT_LSB`` sensor LSBs or more
+    off the mode's angle (:func:`steering_offset`)."""
+    offset = steering_offset(ctx)
+    bar = MISALIGNMENT_LSB * ctx.sheet.drive.steering_lsb
+    return [side for side in range(2) if abs(offset[side]) >= bar]
 
 
 def _misalignment_sliding(ctx: StepContext) -> np.ndarray:
@@ -320,9 +337,7 @@ def _misalignment_sliding(ctx: StepContext) -> np.ndarray:
     channel. Where the sensor shows no offset it is left out, since a tyre's slip angle under a steady
     side force looks the same."""
     st, g, rc = ctx.st, ctx.sheet.geometry, ctx.rolling
-    offset = np.median(st.q[ctx.keep, 3:5], axis=0) - kinematics.mode_alpha(st.k, g)
-    bar = MISALIGNMENT_LSB * ctx.sheet.drive.steering_lsb
-    sides = [side for side in range(2) if abs(offset[side]) >= bar]
+    sides = held_off_sides(ctx)
     out = np.empty((len(st.time), rc.basis.shape[1], len(sides)))
     for column, side in enumerate(sides):
         turned = st.q[:, 3:5].copy()

@@ -258,7 +258,8 @@ def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepte
     model has none. Where the ground's gates named no Stribeck variant beside the other effects (its
     rows are few and near the effects already named), the variant is fitted as the last effect, with the
     accepted ones in the model, beyond its reference level: the both-joints variant where the lane change
-    places friction in the steering joints too (as in the placement), else the wheel variant. It is
+    places friction in the steering joints too or the rotation holds the steering off the mode's angle
+    (as in the placement), else the wheel variant. It is
     named when that fit is physical and its level is there: by the presence test, or by the lifted
     measurement itself where the fitted wheel-joint level agrees with it (``_agrees_with_lifted``). Its
     held-out figures are reported as fitted, not required."""
@@ -274,7 +275,9 @@ def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepte
     steered = stribeck.lane_change_steering_z(rows.steering, rows.steering_reference, model, lag, cache)
     v_s = first["joints=steering"].fit.nonlinear if "joints=steering" in first else None
     z_lc = None if steered is None or v_s is None else steered(v_s)
-    order = (["joints=both"] if z_lc is not None and z_lc >= stribeck.LANE_CHANGE_STEERING_Z
+    in_lane_change = z_lc is not None and z_lc >= stribeck.LANE_CHANGE_STEERING_Z
+    held_off = stribeck.steering_held_off(rows.all_rows, rows.reference)
+    order = (["joints=both"] if (in_lane_change or held_off is not None)
              and "joints=both" in by_variant else []) + ["joints=wheels"]
     if accepted:
         fp, hp, base = _beside(fp, hp, model, accepted_fits, lag, cache)
@@ -302,8 +305,8 @@ def _named_by_lifted_breakaway(fp, hp, model, lag, sheet, accepted_fits, accepte
                           f"their Coulomb friction (z = {excess / std:.0f}); the ground's fit puts the wheel "
                           f"joints' excess at {theta_w:.3g}"
                           + (", which agrees with it" if agrees else "")
-                          + (f", and the lane change places friction in the steering joints (z = {z_lc:.1f})"
-                             if variant == "joints=both" else "")
+                          + ((f", and the lane change places friction in the steering joints (z = {z_lc:.1f})"
+                              if in_lane_change else f", and {held_off}") if variant == "joints=both" else "")
                           + f"; the ground's data alone: p = {cand.p_value:.1e}, not a further effect's gate"
                           + (" beside " + ", ".join(c.hypothesis.label for c in accepted) if accepted else ""))
         return cand, own

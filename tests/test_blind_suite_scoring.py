@@ -300,3 +300,19 @@ def test_a_further_effect_is_tested_at_the_first_rounds_level_shared_over_the_hy
     from qomni.diagnosis.fit import ALPHA, alpha_more
     assert alpha_more(16) == pytest.approx(ALPHA / 16)
     assert alpha_more(1) == ALPHA and alpha_more(0) == ALPHA
+
+
+def test_a_steering_held_off_in_the_rotation_places_friction_in_the_steering_joints_beside_the_wheels():
+    """Without the lifted test: the unsteered steps place friction in the wheel joints, the lane change
+    shows none in the steering joints (a peak narrower than its reversals), but the rotation holds the
+    steering off the mode's angle -> both joints, the note saying what the rotation read; without that
+    reading the wheel joints stay."""
+    from qomni.diagnosis.hypotheses.stribeck import WHEEL_FRICTION_Z, tell_friction_joints_apart
+    z_w = WHEEL_FRICTION_Z + 1.0
+    held_off = "the rotation holds the steering right -9.4 LSB off the mode's angle (the reference run +1.4)"
+    for reading, named in ((held_off, "joints=both"), (None, "joints=wheels")):
+        wheels, steering, both = (_stribeck("joints=wheels", True), _stribeck("joints=steering", True),
+                                  _both([1.0, 0.45], [0.3, 0.2], theta0=[0.1, 0.4]))
+        tell_friction_joints_apart([wheels, steering, both], lambda v_s: z_w, lambda v_s: -1.3, None, reading)
+        assert [c.hypothesis.variant for c in (wheels, steering, both) if c.significant] == [named]
+        assert (reading is not None) == any(held_off in n for n in both.notes)

@@ -166,3 +166,25 @@ def test_a_ground_fit_agrees_with_the_lifted_excess_within_its_and_the_measureme
     cand = NS(hypothesis=NS(parameters=("breakaway_excess",)),
               fit=NS(theta=np.array([theta]), theta_cov=np.array([[sigma**2]])))
     assert _agrees_with_lifted(cand, 0.7, 0.02) is agrees
+
+
+HELD_OFF = "the rotation holds the steering left +4.9 LSB, right -4.7 LSB off the mode's angle"
+
+
+def test_a_steering_held_off_the_rotations_angles_places_the_rest_in_the_steering_joints():
+    """A lifted peak, the lane change silent (a peak narrower than its reversals), the rotation holding
+    the steering off the mode's angles: friction in both joints; the lane change silent and the steering
+    where it should be: the wheel joints."""
+    wheels, steering, both = _three()
+    place_by_lifted_breakaway([wheels, steering, both], PEAK, lambda v_s: -1.3, HELD_OFF)
+    assert both.significant and not wheels.significant and not steering.significant
+    assert any(HELD_OFF in n for n in both.notes)
+    assert any(HELD_OFF in n for n in wheels.notes if "preferred" in n)    # not the lane change's z
+    wheels, steering, both = _three()
+    place_by_lifted_breakaway([wheels, steering, both], PEAK, lambda v_s: -1.3, None)
+    assert wheels.significant and not both.significant
+    assert any("nor a steering held off" in n for n in both.notes)
+    # without a lifted peak the steering joints alone are named, held off or not
+    wheels, steering, both = _three(wheels=True, steering=False)
+    place_by_lifted_breakaway([wheels, steering, both], NONE, lambda v_s: -1.3, HELD_OFF)
+    assert steering.significant and not both.significant

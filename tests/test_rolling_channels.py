@@ -5,6 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from qomni.diagnosis.channels import _misalignment_sliding, rolling_constraints
+from qomni.diagnosis.hypotheses.stribeck import steering_held_off
 from qomni.ident import kinematics
 from qomni.datasheet import DataSheet
 
@@ -95,3 +96,21 @@ def test_steering_within_a_few_sensor_lsb_of_the_mode_gets_no_misalignment_colum
     lsb = SHEET.drive.steering_lsb
     assert _misalignment_sliding(_context(_misaligned_rotation([2 * lsb, -2 * lsb]))).shape[2] == 0
     assert _misalignment_sliding(_context(_misaligned_rotation([5 * lsb, 5 * lsb]))).shape[2] == 2
+
+
+def _rotation_problem(offset):
+    """A stand-in for a diagnosis problem holding one rotation channel whose steering is ``offset`` off."""
+    return SimpleNamespace(channels=[SimpleNamespace(context=_context(_misaligned_rotation(offset)))])
+
+
+def test_a_steering_held_off_the_rotations_angles_is_reported_only_beyond_the_reference_run():
+    lsb = SHEET.drive.steering_lsb
+    assert steering_held_off(_rotation_problem([2 * lsb, -2 * lsb])) is None
+    text = steering_held_off(_rotation_problem([5 * lsb, -1 * lsb]), _rotation_problem([lsb, lsb]))
+    assert "left +5.0 LSB" in text and "right" not in text.split("(")[0] and "reference run +1.0" in text
+    # a reference run holding a side off itself (either side): its controller does not hold even the
+    # model's friction on target, so the offset says nothing of the friction
+    assert steering_held_off(_rotation_problem([5 * lsb, 0.0]), _rotation_problem([-6 * lsb, 0.0])) is None
+    assert steering_held_off(_rotation_problem([5 * lsb, 0.0]), _rotation_problem([0.0, 19 * lsb])) is None
+    # a run without a rotation step has nothing to say
+    assert steering_held_off(SimpleNamespace(channels=[])) is None

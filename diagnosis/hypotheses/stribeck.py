@@ -6,7 +6,7 @@ from scipy import stats
 
 from qomni.conventions import EPSILON as EPS_SIGN
 
-from ..channels import ChannelData
+from ..channels import ChannelData, held_off_sides, steering_offset
 from .base import Hypothesis, RuleRows, _linear_magnitude, _project, _torque_only
 
 
@@ -92,7 +92,8 @@ LIFTED_BREAKAWAY_Z = float(stats.norm.isf(1e-3))
 LIFTED_BREAKAWAY_EXCESS = 0.1
 
 
-def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, unsteered_sigma=None) -> None:
+def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, unsteered_sigma=None,
+                               held_off: str | None = None) -> None:
     """Decide between the two Stribeck variants where they differ.
 
     In mode 1 the steered wheels roll with the steering (β̇ = H₁α̇), so low-speed friction of the wheel
@@ -113,8 +114,9 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     friction in the steering joints as well (``steered_z(v_s)``: the steering variant's level in the lane
     change's steering channel beyond the reference run's, asked at the Stribeck velocity the steering
     variant's fit profiled on the steering steps), the both-joints variant is named instead
-    (:func:`_in_both_joints`). It is never named by its own test. ``steered_z`` None (or None at v_s): the
-    run has no lane change, and the both-joints fit's steering coefficient decides.
+    (:func:`_in_both_joints`); or where the rotation holds the steering off the mode's angle
+    (``held_off``, :func:`steering_held_off`). It is never named by its own test. ``steered_z`` None (or
+    None at v_s): the run has no lane change, and the both-joints fit's steering coefficient decides.
 
     The bar for the unsteered steps is ``WHEEL_FRICTION_Z`` or, where it is lower, half the z the wheel
     variant's own level (fitted on the steering steps, beyond the reference's) would have there
@@ -136,8 +138,10 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     z_lc = None if steered_z is None else steered_z(steering.fit.nonlinear)
     _wheels_or_steering(wheels, steering, z, bar)
     if both is not None and z >= bar and (wheels.significant or steering.significant):
-        _in_both_joints(both, wheels, steering, z, z_lc)
+        _in_both_joints(both, wheels, steering, z, z_lc, held_off=held_off)
     evidence = _placement_evidence(z, bar, predicted, z_lc, steering.fit.nonlinear)
+    if held_off is not None:
+        evidence += f"; {held_off}"
     for c in (wheels, steering, both):
         if c is not None:
             c.notes.append(evidence)
@@ -162,7 +166,8 @@ def lifted_peak(breakaway: tuple[float, float] | None) -> bool:
     return excess >= LIFTED_BREAKAWAY_EXCESS and excess / std >= LIFTED_BREAKAWAY_Z
 
 
-def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], steered_z=None) -> None:
+def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], steered_z=None,
+                              held_off: str | None = None) -> None:
     """Decide between the Stribeck variants by the lifted breakaway test: the wheel joints' breakaway
     excess measured on the lifted vehicle (``breakaway``: (excess, σ), :mod:`qomni.ident.breakaway`),
     where only the wheel joints' friction resists a drive's torque.
@@ -171,7 +176,8 @@ def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], 
     With a peak in the wheel joints (excess ≥ LIFTED_BREAKAWAY_EXCESS and z ≥ LIFTED_BREAKAWAY_Z) the wheel
     variant is named, with the steering variant's significance where only that one passed; and the
     both-joints variant instead where the lane change places friction in the steering joints as well
-    (``steered_z``, as in :func:`tell_friction_joints_apart`). Without one the wheel variant is withdrawn,
+    (``steered_z``, as in :func:`tell_friction_joints_apart`) or the rotation holds the steering off the
+    mode's angle (``held_off``, :func:`steering_held_off`). Without one the wheel variant is withdrawn,
     and the steering variant named where it is physical, confirms on held-out data and is there, with the
     wheel variant's significance where only that one passed. The steps without steering motion are not
     asked: a wheel-joint level there competes with the Coulomb-like levels each step keeps where friction
@@ -201,10 +207,13 @@ def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], 
         z_lc = None if steered_z is None else steered_z(steering.fit.nonlinear)
         if both is not None and wheels.significant:
             _in_both_joints(both, wheels, steering, z, z_lc,
-                            f"the lifted wheels break away {excess:.3f} above their Coulomb friction (z = {z:.1f})")
+                            f"the lifted wheels break away {excess:.3f} above their Coulomb friction (z = {z:.1f})",
+                            held_off)
         if z_lc is not None:
             evidence += (f"; the steering joints' level in the lane change z = {z_lc:.2f} at "
                          f"{steering.fit.nonlinear:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
+        if held_off is not None:
+            evidence += f"; {held_off}"
     else:
         if wheels.significant:
             wheels.significant = False
@@ -250,7 +259,7 @@ def _unsteered_bar(predicted: float | None) -> float:
 
 
 def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | None = None,
-                    wheel_evidence: str = "") -> None:
+                    wheel_evidence: str = "", held_off: str | None = None) -> None:
     """Name the both-joints variant in place of the single-joint one the placement chose, when the
     steering joints' level in the lane change (``z_lane_change``, at the Stribeck velocity of the steering
     variant's fit) exceeds the reference run's level there by LANE_CHANGE_STEERING_Z: the wheel joints are
@@ -260,7 +269,10 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
     wheels stick and slip), so the both-joints fit hands the excess to the steering joints. Without a lane
     change (``z_lane_change`` None) the both-joints fit's steering coefficient beyond the reference run's
     decides. ``wheel_evidence``: what placed the wheel joints' share, for the note (default: the steps
-    without steering motion at ``z``)."""
+    without steering motion at ``z``). ``held_off``: where the rotation holds the steering off the mode's
+    angle and the reference run does not (:func:`steering_held_off`), what it read: static friction in
+    the steering joints, which places their share where the level test does not reach the bar (a peak
+    narrower than the lane change's reversals resolve)."""
     from ..fit import coefficient_z, present  # the fitting machinery imports this package: import at use
 
     if z_lane_change is None:
@@ -269,9 +281,10 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
         z_s, bar, where = coefficient_z(both.fit, -1), STEERING_BEYOND_WHEELS_Z, "the steering steps"
     else:
         z_s, bar, where = z_lane_change, LANE_CHANGE_STEERING_Z, "the lane change"
-    if z_s < bar:
+    if z_s < bar and held_off is None:
         both.notes.append(f"no steering-joint friction beyond the reference run's in {where} "
-                          f"(z = {z_s:.1f} < {bar:.2f}): not named")
+                          f"(z = {z_s:.1f} < {bar:.2f}) nor a steering held off the rotation's angles: "
+                          f"not named")
         return
     if not both.physical or not present(both):
         both.notes.append("the both-joints fit is not physical or its level not there: not named")
@@ -280,15 +293,17 @@ def _in_both_joints(both, wheels, steering, z: float, z_lane_change: float | Non
     both.significant = True
     wheel_evidence = wheel_evidence or (f"the wheel joints' level in the steps without steering motion exceeds "
                                         f"the reference run's by z = {z:.1f}")
-    both.notes.append(f"{wheel_evidence}, and the steering joints' level in {where} exceeds the reference "
-                      f"run's by z = {z_s:.1f}; steering joints' breakaway/Coulomb − 1 = {both.fit.theta[-1]:.3g}; "
-                      f"significance from the {chosen.hypothesis.variant} variant's test "
-                      f"(p = {chosen.p_value:.1e})")
+    steering_evidence = (f"the steering joints' level in {where} exceeds the reference run's by z = {z_s:.1f}"
+                         if z_s >= bar else held_off)
+    both.notes.append(f"{wheel_evidence}, and {steering_evidence}; steering joints' breakaway/Coulomb − 1 = "
+                      f"{both.fit.theta[-1]:.3g}; significance from the {chosen.hypothesis.variant} variant's "
+                      f"test (p = {chosen.p_value:.1e})")
     for single in (wheels, steering):
         if single.significant:
             single.significant = False
             single.notes.append("the both-joints variant is preferred: friction in the wheel and the "
-                                f"steering joints (z = {z:.1f} and {z_s:.1f})")
+                                + (f"steering joints (z = {z:.1f} and {z_s:.1f})" if z_s >= bar
+                                   else f"steering joints (z = {z:.1f}; {held_off})"))
 
 
 def _wheels_or_steering(wheels, steering, z: float, bar: float = WHEEL_FRICTION_Z) -> None:
@@ -388,22 +403,64 @@ def lane_change_steering_z(steering_rows, steering_reference, model, lag: int, c
                                            v_s, lag, cache)
 
 
+def steering_held_off(all_rows, reference=None) -> str | None:
+    """What shows static friction in the steering joints beyond the model's: a side whose steering the
+    diagnosed run's rotation holds ``channels.MISALIGNMENT_LSB`` sensor LSBs or more off the mode's angle
+    (:func:`qomni.diagnosis.channels.held_off_sides`), where the reference run's rotation holds both sides
+    on the mode's angle. None where no side is, where the run has no rotation, or where the reference run
+    holds a side off itself: its controller then does not hold even the model's friction on target (a
+    steering bandwidth lowered for an actuator delay: a 20 ms delay's twin, whose friction breaks away
+    at its Coulomb level, held one side 19 LSB off), so an offset says nothing of the friction.
+
+    Mode 4 holds every steering angle fixed while the wheels roll fast, so the steering drives only have
+    to hold a position against the scrub; a drive whose joint breaks away above its Coulomb friction
+    stops short of its target where the model's friction would not. The 4 LSB bar is the misalignment
+    columns' (1.5 mrad): on full campaigns 39 vehicles without steering-joint Stribeck friction (30
+    recorded, 9 at range ends, wheel-joint Stribeck friction at both ends among them) and every twin at
+    the default steering bandwidth held both sides within 1.4 LSB; 6 of 13 with steering-joint Stribeck
+    friction held a side 4.9–13.1 LSB off (docs/diagnosis.md, "The steering held off"). A
+    static measurement, like the lifted wheels' breakaway, it places friction in the steering joints where
+    the lane change does not: a peak narrower than its reversals (0.02–0.03 rad/s) reads there z = −1.3
+    and −3.4 while the rotation holds both sides 4.7–11 LSB off."""
+    def rotation(problem):
+        return None if problem is None else next(
+            (ch.context for ch in problem.channels if ch.context.rolling is not None), None)
+
+    ctx = rotation(all_rows)
+    ref = rotation(reference)
+    if ctx is None or (ref is not None and held_off_sides(ref)):
+        return None
+    sides = held_off_sides(ctx)
+    if not sides:
+        return None
+    lsb = ctx.sheet.drive.steering_lsb
+    offset = steering_offset(ctx) / lsb
+    text = "the rotation holds the steering " + ", ".join(
+        f"{('left', 'right')[side]} {offset[side]:+.1f} LSB" for side in sides) + " off the mode's angle"
+    if ref is not None:
+        ref_offset = steering_offset(ref) / lsb
+        text += " (the reference run " + ", ".join(f"{ref_offset[side]:+.1f}" for side in sides) + ")"
+    return text
+
+
 def resolve_joints(candidates: list, rows: RuleRows) -> None:
     """The Stribeck variants' rule (``Hypothesis.resolve``): where the run has the lifted breakaway test,
     :func:`place_by_lifted_breakaway`; otherwise :func:`tell_friction_joints_apart` with the wheel
     variant's level in the steps without steering motion (:func:`unsteered_wheel_level`). Both take the
-    steering variant's level in the lane change (:func:`lane_change_steering_z`) for the steering
-    joints' share."""
+    steering variant's level in the lane change (:func:`lane_change_steering_z`) and the rotation's
+    steering offset (:func:`steering_held_off`) for the steering joints' share."""
     steered = lane_change_steering_z(rows.steering, rows.steering_reference, rows.model, rows.lag,
                                      rows.cache)
+    held_off = steering_held_off(rows.all_rows, rows.reference)
     if rows.lifted_breakaway is not None:
-        place_by_lifted_breakaway(candidates, rows.lifted_breakaway, steered)
+        place_by_lifted_breakaway(candidates, rows.lifted_breakaway, steered, held_off)
         return
     level = unsteered_wheel_level(rows.all_rows, rows.reference, rows.model, rows.lag, rows.cache)
     tell_friction_joints_apart(candidates,
                                lambda v_s: None if level(v_s) is None else level(v_s)[0],
                                steered,
-                               lambda v_s: None if level(v_s) is None else level(v_s)[1])
+                               lambda v_s: None if level(v_s) is None else level(v_s)[1],
+                               held_off)
 
 
 STRIBECK_WHEELS = Hypothesis(
