@@ -32,6 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from qomni.ident import filtering, kinematics, odometry
+from qomni.ident.controller import INTEGRAL_DEADBAND_LSB
 from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STEP
 from qomni.datasheet import DataSheet
 from qomni.ident.result import IdentificationResult
@@ -302,12 +303,14 @@ def _rolling_channels(ctx: StepContext) -> list[ChannelData]:
 #: rad: the steering-angle step of the finite difference in :func:`_misalignment_sliding`.
 MISALIGNMENT_STEP = 1e-4
 #: Steering sensor LSBs (2π/2¹⁴ rad each) by which a side's median angle must miss the mode's angle for
-#: the step's rolling channels to get that side's misalignment column: 4 LSB ≈ 1.5 mrad. Steering
-#: stiction leaves 1.9–4.2 mrad (Stribeck, breakaway twice d_c); every other effect and the ideal vehicle
-#: at most 2 LSB at the default steering bandwidth (a 20 ms actuator delay, at the bandwidth lowered for
-#: it, 17 LSB). Also the bar of the Stribeck placement's static reading of the steering joints
-#: (:func:`qomni.diagnosis.hypotheses.stribeck.steering_held_off`).
-MISALIGNMENT_LSB = 4
+#: the step's rolling channels to get that side's misalignment column, and for the Stribeck placement's
+#: static reading of the steering joints (:func:`qomni.diagnosis.hypotheses.stribeck.steering_held_off`):
+#: the campaign controller's integral deadband (``ident.controller.INTEGRAL_DEADBAND_LSB``, 1.5: a held
+#: steering may rest that far off by design) plus one LSB for the quantized readings, 2.5 LSB ≈ 0.96 mrad.
+#: On full campaigns at the default steering bandwidth every vehicle without steering-joint stiction and
+#: every twin held both sides within 1.4 LSB (54 vehicles); steering-joint Stribeck friction up to 13 LSB; a
+#: 20 ms actuator delay, at the bandwidth lowered for it, 17 LSB.
+MISALIGNMENT_LSB = INTEGRAL_DEADBAND_LSB + 1.0
 
 
 def steering_offset(ctx: StepContext) -> np.ndarray:

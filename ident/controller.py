@@ -29,6 +29,11 @@ from .excitation import ExcitationStep
 CHASSIS_COORDINATE = {2: "x_ch", 3: "y_ch", 4: "gamma_ch"}
 
 
+#: Steering errors within this many sensor LSBs are not integrated (no wind-up on the quantization), so a
+#: held steering may rest up to this far off its reference.
+INTEGRAL_DEADBAND_LSB = 1.5
+
+
 @dataclass(frozen=True)
 class ControllerSettings:
     """Loop bandwidths (rad/s) and damping; the velocity-estimate filter cutoff (rad/s)."""
@@ -109,8 +114,7 @@ class StepController:
         self._s_chassis = 0.0
         self._steer_integral = np.zeros(2)
         self.retune(s.steering_bandwidth)
-        # errors within the steering sensor's quantization are not integrated (no wind-up on an LSB)
-        self._integral_deadband = 1.5 * d.steering_lsb
+        self._integral_deadband = INTEGRAL_DEADBAND_LSB * d.steering_lsb
         self._u_max = s.torque_margin * d.max_torque
         self.state: ControllerState | None = None
         self._chassis_terms_at = lru_cache(maxsize=4096)(self._chassis_terms_uncached)

@@ -6,6 +6,7 @@ import numpy as np
 
 from qomni.diagnosis.channels import _misalignment_sliding, rolling_constraints
 from qomni.diagnosis.hypotheses.stribeck import steering_held_off
+from qomni.ident.controller import INTEGRAL_DEADBAND_LSB
 from qomni.ident import kinematics
 from qomni.datasheet import DataSheet
 
@@ -105,7 +106,11 @@ def _rotation_problem(offset):
 
 def test_a_steering_held_off_the_rotations_angles_is_reported_only_beyond_the_reference_run():
     lsb = SHEET.drive.steering_lsb
+    # the controller leaves a held steering anywhere within its integral deadband: no reading there
+    deadband = INTEGRAL_DEADBAND_LSB * lsb
+    assert steering_held_off(_rotation_problem([deadband, -deadband])) is None
     assert steering_held_off(_rotation_problem([2 * lsb, -2 * lsb])) is None
+    assert "right -3.0 LSB" in steering_held_off(_rotation_problem([0.0, -3 * lsb]))
     text = steering_held_off(_rotation_problem([5 * lsb, -1 * lsb]), _rotation_problem([lsb, lsb]))
     assert "left +5.0 LSB" in text and "right" not in text.split("(")[0] and "reference run +1.0" in text
     # a reference run holding a side off itself (either side): its controller does not hold even the

@@ -414,14 +414,15 @@ def steering_held_off(all_rows, reference=None) -> str | None:
 
     Mode 4 holds every steering angle fixed while the wheels roll fast, so the steering drives only have
     to hold a position against the scrub; a drive whose joint breaks away above its Coulomb friction
-    stops short of its target where the model's friction would not. The 4 LSB bar is the misalignment
-    columns' (1.5 mrad): on full campaigns 39 vehicles without steering-joint Stribeck friction (30
-    recorded, 9 at range ends, wheel-joint Stribeck friction at both ends among them) and every twin at
-    the default steering bandwidth held both sides within 1.4 LSB; 6 of 13 with steering-joint Stribeck
-    friction held a side 4.9–13.1 LSB off (docs/diagnosis.md, "The steering held off"). A
+    stops short of its target where the model's friction would not. The bar is the misalignment
+    columns' (2.5 LSB, 0.96 mrad: the controller's integral deadband plus one LSB): on full campaigns 54
+    vehicles without steering-joint Stribeck friction (wheel-joint Stribeck friction at both ends of its
+    range among them) and every twin at the default steering bandwidth held both sides within 1.4 LSB;
+    13 of 21 with steering-joint Stribeck friction held a side 2.9–66 LSB off (docs/diagnosis.md, "The
+    steering held off"). A
     static measurement, like the lifted wheels' breakaway, it places friction in the steering joints where
-    the lane change does not: a peak narrower than its reversals (0.02–0.03 rad/s) reads there z = −1.3
-    and −3.4 while the rotation holds both sides 4.7–11 LSB off."""
+    the lane change does not: peaks narrower than its reversals (0.016–0.031 rad/s) read there z = −1.3
+    to −3.4 while the rotation holds both sides 3.1–11 LSB off."""
     def rotation(problem):
         return None if problem is None else next(
             (ch.context for ch in problem.channels if ch.context.rolling is not None), None)
