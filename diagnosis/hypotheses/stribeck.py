@@ -422,7 +422,15 @@ def steering_held_off(all_rows, reference=None) -> str | None:
     steering held off"). A
     static measurement, like the lifted wheels' breakaway, it places friction in the steering joints where
     the lane change does not: peaks narrower than its reversals (0.016–0.031 rad/s) read there z = −1.3
-    to −3.4 while the rotation holds both sides 3.1–11 LSB off."""
+    to −3.4 while the rotation holds both sides 3.1–11 LSB off.
+
+    Args:
+        all_rows: the diagnosed run's problem (:mod:`qomni.diagnosis.problem`); its rotation channels'
+            ``context`` carries the step's signals.
+        reference: the reference run's problem, or None (no reference: the diagnosed run alone decides).
+    Returns:
+        The note's text (each held-off side's offset in LSB, signed, and the reference run's there), or None.
+    """
     def rotation(problem):
         return None if problem is None else next(
             (ch.context for ch in problem.channels if ch.context.rolling is not None), None)
