@@ -139,9 +139,7 @@ def tell_friction_joints_apart(candidates: list, unsteered_z, steered_z=None, un
     _wheels_or_steering(wheels, steering, z, bar)
     if both is not None and z >= bar and (wheels.significant or steering.significant):
         _in_both_joints(both, wheels, steering, z, z_lc, held_off=held_off)
-    evidence = _placement_evidence(z, bar, predicted, z_lc, steering.fit.nonlinear)
-    if held_off is not None:
-        evidence += f"; {held_off}"
+    evidence = _placement_evidence(z, bar, predicted, z_lc, steering.fit.nonlinear, held_off)
     for c in (wheels, steering, both):
         if c is not None:
             c.notes.append(evidence)
@@ -209,11 +207,7 @@ def place_by_lifted_breakaway(candidates: list, breakaway: tuple[float, float], 
             _in_both_joints(both, wheels, steering, z, z_lc,
                             f"the lifted wheels break away {excess:.3f} above their Coulomb friction (z = {z:.1f})",
                             held_off)
-        if z_lc is not None:
-            evidence += (f"; the steering joints' level in the lane change z = {z_lc:.2f} at "
-                         f"{steering.fit.nonlinear:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
-        if held_off is not None:
-            evidence += f"; {held_off}"
+        evidence += _steering_evidence(z_lc, steering.fit.nonlinear, held_off)
     else:
         if wheels.significant:
             wheels.significant = False
@@ -240,14 +234,20 @@ def _predicted_unsteered_z(wheels, sigma: float | None) -> float | None:
 
 
 def _placement_evidence(z: float, bar: float, predicted: float | None, z_lane_change: float | None,
-                        v_s_steering) -> str:
+                        v_s_steering, held_off: str | None = None) -> str:
     """The note that states what the placement read (every Stribeck variant carries it)."""
     text = f"placement: the wheel joints' level in the steps without steering motion z = {z:.2f} (bar {bar:.2f}"
     text += ")" if predicted is None else f", the wheel variant predicts {predicted:.2f})"
-    if z_lane_change is not None:
-        text += (f"; the steering joints' level in the lane change z = {z_lane_change:.2f} at "
-                 f"{v_s_steering:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
-    return text
+    return text + _steering_evidence(z_lane_change, v_s_steering, held_off)
+
+
+def _steering_evidence(z_lane_change: float | None, v_s_steering, held_off: str | None) -> str:
+    """The placement note's part on the steering joints: the lane change's level (where it was asked) and
+    the rotation's steering offset (where it reads, :func:`steering_held_off`), each "; "-led; "" without."""
+    text = "" if z_lane_change is None else (
+        f"; the steering joints' level in the lane change z = {z_lane_change:.2f} at "
+        f"{v_s_steering:g} rad/s (bar {LANE_CHANGE_STEERING_Z:.3f})")
+    return text if held_off is None else f"{text}; {held_off}"
 
 
 def _unsteered_bar(predicted: float | None) -> float:
