@@ -190,10 +190,15 @@ def _own_floor(ref_problem, model: IdentificationResult, lag: int, cache: dict) 
 
 
 def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
-    """Whether held-out data confirm a further effect: its window-bootstrap interval is above 0, it adds
-    no residual overall, and it removes MIN_SHRINK_MORE of its channel's residual or, where the model's
-    own-run residual ``floor`` (channel → RMS) is known, FLOOR_MULTIPLE_MORE times that floor."""
-    if ev.shrink_affected_ci[0] <= 0 or ev.removed <= 0:
+    """Whether held-out data confirm a further effect: the residual it removes over every channel has a
+    window-bootstrap interval above 0 (``Evaluation.removed_ci``), and it removes MIN_SHRINK_MORE of its
+    affected channel's residual or, where the model's own-run residual ``floor`` (channel → RMS) is known,
+    FLOOR_MULTIPLE_MORE times that floor.
+
+    The interval resamples the held-out windows of every step: an effect that acts on several steps
+    (a steering compliance on both arcs, the rotation and the straight run) is confirmed by all their
+    windows, not by the few of the one channel where it removes most (a 10 s arc holds five)."""
+    if ev.removed <= 0 or ev.removed_ci is None or ev.removed_ci[0] <= 0:
         return False
     if ev.confirms(evaluation.MIN_SHRINK_MORE):
         return True

@@ -69,6 +69,11 @@ class Evaluation:
     affected: str
     shrink_affected: float
     shrink_affected_ci: tuple[float, float]
+    #: Window-bootstrap 95 % interval of :attr:`removed`: the held-out windows of each step resampled
+    #: within that step (every campaign has its steps; all of a step's channels in a window together),
+    #: so it asks whether the effect removes residual across the campaign's windows, not in a few.
+    #: ``None`` where not computed.
+    removed_ci: tuple[float, float] | None = None
 
     @property
     def removed(self) -> float:
@@ -84,12 +89,14 @@ class Evaluation:
 
 def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
              rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
-    """Held-out residual before (``base``) and after (``ext``), per channel, with a window-bootstrap 95 %
-    interval for the affected channel's shrinkage. ``affected``: that channel, when another
-    evaluation of the same effect has chosen it (default: chosen here, see below)."""
+    """Held-out residual before (``base``) and after (``ext``), per channel, with window-bootstrap 95 %
+    intervals for the affected channel's shrinkage and for the weighted residual removed over every
+    channel (:attr:`Evaluation.removed_ci`). ``affected``: that channel, when another evaluation of the
+    same effect has chosen it (default: chosen here, see below)."""
     rng = rng or np.random.default_rng(0)
     out = []
     per_window = {}
+    removed_by_block: dict[tuple[str, int], float] = {}
     rss_b = rss_a = 0.0
     for i, ch in enumerate(problem.channels):
         rows = problem.holdout_rows[i]
@@ -104,6 +111,10 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
                                  float(np.sqrt(np.mean(after**2)))))
         wins = problem.window_id[i][rows]
         per_window[ch.name] = (wins, before, after)
+        step = ch.name.split("/")[0]
+        gained = (w * before) ** 2 - (w * after) ** 2
+        for k in np.unique(wins):
+            removed_by_block[step, int(k)] = removed_by_block.get((step, int(k)), 0.0) + float(gained[wins == k].sum())
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
     gain = {}
@@ -127,7 +138,14 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         pick = rng.integers(0, len(ids), len(ids))
         boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
     lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
-    return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)))
+    # Stratified by step: every campaign has its steps, only their windows vary.
+    replicates = np.zeros(BOOTSTRAP)
+    for step in dict.fromkeys(step for step, _ in removed_by_block):
+        gained = np.array([g for (s, _), g in removed_by_block.items() if s == step])
+        replicates += gained[rng.integers(0, len(gained), (BOOTSTRAP, len(gained)))].sum(axis=1)
+    removed_lo, removed_hi = np.percentile(replicates, [2.5, 97.5])
+    return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)),
+                      (float(removed_lo), float(removed_hi)))
 
 
 def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:

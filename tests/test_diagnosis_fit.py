@@ -239,10 +239,10 @@ def test_a_hypothesis_whose_torque_column_the_base_spans_is_separable_through_it
 def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_against_the_models_own_floor():
     from qomni.diagnosis.diagnose import FLOOR_MULTIPLE_MORE, _confirms_further
 
-    def evaluation(before, after, ci=(0.04, 0.10), removed=10.0):
+    def evaluation(before, after, removed_ci=(2.0, 18.0), removed=10.0):
         shrink = 1 - after / before
         return Evaluation([ChannelShrink("rotation/gamma_ch", before, after)], 100.0,
-                          100.0 - removed, "rotation/gamma_ch", shrink, ci)
+                          100.0 - removed, "rotation/gamma_ch", shrink, (-0.3, 0.5), removed_ci)
 
     floor = {"rotation/gamma_ch": 1.3}   # N m: the model's residual on its own run
     # a 4 ms delay next to a backlash whose torque transients its hypothesis leaves: 7 %, 8.1 N m removed
@@ -252,10 +252,38 @@ def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_agains
     # the same share of a residual near the floor is not enough
     small = evaluation(4.0, 3.72)
     assert small.channels[0].removed_rms < FLOOR_MULTIPLE_MORE * 1.3 and not _confirms_further(small, floor)
-    # a share above 20 % needs no floor; neither rule passes an interval reaching 0 or more residual overall
+    # a share above 20 % needs no floor (the affected channel's own interval reaching below 0 does not
+    # matter); neither rule passes a removal whose interval reaches 0, or more residual overall
     assert _confirms_further(evaluation(4.0, 3.0), None)
-    assert not _confirms_further(evaluation(21.28, 19.69, ci=(-0.01, 0.1)), floor)
-    assert not _confirms_further(evaluation(21.28, 19.69, removed=-1.0), floor)
+    assert not _confirms_further(evaluation(4.0, 3.0, removed_ci=(-1.0, 20.0)), None)
+    assert not _confirms_further(evaluation(21.28, 19.69, removed_ci=(-1.0, 20.0)), floor)
+    assert not _confirms_further(evaluation(21.28, 19.69, removed=-1.0, removed_ci=(-20.0, 5.0)), floor)
+    assert not _confirms_further(evaluation(4.0, 3.0, removed_ci=None), None)
+
+
+def test_the_residual_an_effect_removes_is_resampled_over_the_held_out_windows_of_every_step():
+    # One effect in three steps, five held-out windows each; in one window of the channel where it
+    # removes the largest share its column misfits. That channel's own interval reaches far below 0,
+    # the removal over every step's windows does not.
+    from qomni.diagnosis.evaluation import evaluate, on_model
+    rng = np.random.default_rng(0)
+    chans = [_channel(n, rng, planted=0.5) for n in ("arc_left/x_ch", "arc_right/x_ch", "rotation/gamma_ch")]
+    win = np.arange(N_ROWS) // 40
+    arc = chans[1]
+    arc.residual = 0.5 * arc.phi + 0.2 * rng.normal(size=N_ROWS)
+    arc.residual[win == 5] -= arc.phi[win == 5]
+    _, hold = _alternating_windows(chans)
+    base, ext = on_model(None, None, np.zeros(0), 10), on_model(LEVEL, None, np.array([0.5]), 10)
+    ev = evaluate(hold, base, ext)
+    assert ev.affected == "arc_right/x_ch" and ev.shrink_affected_ci[0] < -0.2
+    assert 0 < ev.removed_ci[0] < ev.removed < ev.removed_ci[1]
+    # what it removes in one window alone is no confirmation, however large its share there
+    for ch in chans:
+        ch.phi = np.zeros(N_ROWS)
+    chans[0].phi[win == 3] = 1.0
+    chans[0].residual[win == 3] += 2.0
+    burst = evaluate(_alternating_windows(chans)[1], base, on_model(LEVEL, None, np.array([2.0]), 10))
+    assert burst.removed > 0 and burst.shrink_affected > 0.2 and burst.removed_ci[0] <= 0
 
 
 def test_the_models_own_floor_is_what_it_leaves_on_the_reference_re_identified_there():
