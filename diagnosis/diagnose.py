@@ -195,9 +195,10 @@ def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
     affected channel's residual or, where the model's own-run residual ``floor`` (channel → RMS) is known,
     FLOOR_MULTIPLE_MORE times that floor.
 
-    The interval resamples the held-out windows of every step: an effect that acts on several steps
+    The interval resamples the held-out windows within each step: an effect that acts on several steps
     (a steering compliance on both arcs, the rotation and the straight run) is confirmed by all their
-    windows, not by the few of the one channel where it removes most (a 10 s arc holds five)."""
+    windows, not by the few of the one channel where it removes most (a 10 s arc holds five), and one
+    that adds in one step what it removes in others is not confirmed by the sum's sign alone."""
     if ev.removed <= 0 or ev.removed_ci is None or ev.removed_ci[0] <= 0:
         return False
     if ev.confirms(evaluation.MIN_SHRINK_MORE):

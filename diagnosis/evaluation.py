@@ -111,10 +111,11 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
                                  float(np.sqrt(np.mean(after**2)))))
         wins = problem.window_id[i][rows]
         per_window[ch.name] = (wins, before, after)
-        step = ch.name.split("/")[0]
-        gained = (w * before) ** 2 - (w * after) ** 2
-        for k in np.unique(wins):
-            removed_by_block[step, int(k)] = removed_by_block.get((step, int(k)), 0.0) + float(gained[wins == k].sum())
+        step = ch.name.split("/")[0]   # channels are named "<step>/<quantity>"
+        ids, of_row = np.unique(wins, return_inverse=True)
+        gained = np.bincount(of_row, weights=(w * before) ** 2 - (w * after) ** 2, minlength=len(ids))
+        for k, g in zip(ids, gained):
+            removed_by_block[step, int(k)] = removed_by_block.get((step, int(k)), 0.0) + float(g)
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
     gain = {}
