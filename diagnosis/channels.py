@@ -306,11 +306,11 @@ MISALIGNMENT_STEP = 1e-4
 #: the step's rolling channels to get that side's misalignment column, and for the Stribeck placement's
 #: static reading of the steering joints (:func:`qomni.diagnosis.hypotheses.stribeck.steering_held_off`):
 #: the campaign controller's integral deadband (``ident.controller.INTEGRAL_DEADBAND_LSB``, 1.5: a held
-#: steering may rest that far off by design) plus one LSB for the quantized readings, 2.5 LSB ≈ 0.96 mrad.
-#: On full campaigns at the default steering bandwidth every vehicle without steering-joint stiction and
-#: every twin held both sides within 1.4 LSB (54 vehicles); steering-joint Stribeck friction up to 13 LSB; a
-#: 20 ms actuator delay, at the bandwidth lowered for it, 17 LSB.
-MISALIGNMENT_LSB = INTEGRAL_DEADBAND_LSB + 1.0
+#: steering may rest that far off by design) plus half an LSB, the rounding of the sensor's reading:
+#: 2.0 LSB ≈ 0.77 mrad. On full campaigns at the default steering bandwidth every vehicle without
+#: steering-joint stiction and every twin held both sides within 1.4 LSB (54 vehicles); steering-joint
+#: Stribeck friction up to 66 LSB; a 20 ms actuator delay, at the bandwidth lowered for it, 17 LSB.
+MISALIGNMENT_LSB = INTEGRAL_DEADBAND_LSB + 0.5
 
 
 def steering_offset(ctx: StepContext) -> np.ndarray:

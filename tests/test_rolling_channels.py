@@ -95,7 +95,8 @@ def test_misaligned_steering_slides_in_the_rolling_channels_and_its_column_holds
 
 def test_steering_within_a_few_sensor_lsb_of_the_mode_gets_no_misalignment_column():
     lsb = SHEET.drive.steering_lsb
-    assert _misalignment_sliding(_context(_misaligned_rotation([2 * lsb, -2 * lsb]))).shape[2] == 0
+    assert _misalignment_sliding(_context(_misaligned_rotation([1.9 * lsb, -1.9 * lsb]))).shape[2] == 0
+    assert _misalignment_sliding(_context(_misaligned_rotation([-2.2 * lsb, 17.8 * lsb]))).shape[2] == 2
     assert _misalignment_sliding(_context(_misaligned_rotation([5 * lsb, 5 * lsb]))).shape[2] == 2
 
 
@@ -109,7 +110,9 @@ def test_a_steering_held_off_the_rotations_angles_is_reported_only_beyond_the_re
     # the controller leaves a held steering anywhere within its integral deadband: no reading there
     deadband = INTEGRAL_DEADBAND_LSB * lsb
     assert steering_held_off(_rotation_problem([deadband, -deadband])) is None
-    assert steering_held_off(_rotation_problem([2 * lsb, -2 * lsb])) is None
+    # ... read to the nearest LSB: half an LSB more
+    assert steering_held_off(_rotation_problem([1.9 * lsb, -1.9 * lsb])) is None
+    assert "left -2.2 LSB" in steering_held_off(_rotation_problem([-2.2 * lsb, 0.0]))
     assert "right -3.0 LSB" in steering_held_off(_rotation_problem([0.0, -3 * lsb]))
     text = steering_held_off(_rotation_problem([5 * lsb, -1 * lsb]), _rotation_problem([lsb, lsb]))
     assert "left +5.0 LSB" in text and "right" not in text.split("(")[0] and "reference run +1.0" in text

@@ -415,7 +415,7 @@ def steering_held_off(all_rows, reference=None) -> str | None:
     Mode 4 holds every steering angle fixed while the wheels roll fast, so the steering drives only have
     to hold a position against the scrub; a drive whose joint breaks away above its Coulomb friction
     stops short of its target where the model's friction would not. The bar is the misalignment
-    columns' (2.5 LSB, 0.96 mrad: the controller's integral deadband plus one LSB): on full campaigns 54
+    columns' (2.0 LSB, 0.77 mrad: the controller's integral deadband plus the reading's rounding): on full campaigns 54
     vehicles without steering-joint Stribeck friction (wheel-joint Stribeck friction at both ends of its
     range among them) and every twin at the default steering bandwidth held both sides within 1.4 LSB;
     13 of 21 with steering-joint Stribeck friction held a side 2.9–66 LSB off (docs/diagnosis.md, "The
