@@ -96,7 +96,7 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     rng = rng or np.random.default_rng(0)
     out = []
     per_window = {}
-    removed_by_block: dict[tuple[str, int], float] = {}
+    removed_by_window: dict[str, dict[int, float]] = {}   # step → held-out window → weighted RSS removed
     rss_b = rss_a = 0.0
     for i, ch in enumerate(problem.channels):
         rows = problem.holdout_rows[i]
@@ -111,11 +111,11 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
                                  float(np.sqrt(np.mean(after**2)))))
         wins = problem.window_id[i][rows]
         per_window[ch.name] = (wins, before, after)
-        step = ch.name.split("/")[0]   # channels are named "<step>/<quantity>"
+        step = removed_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
         ids, of_row = np.unique(wins, return_inverse=True)
         gained = np.bincount(of_row, weights=(w * before) ** 2 - (w * after) ** 2, minlength=len(ids))
         for k, g in zip(ids, gained):
-            removed_by_block[step, int(k)] = removed_by_block.get((step, int(k)), 0.0) + float(g)
+            step[int(k)] = step.get(int(k), 0.0) + float(g)
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
     gain = {}
@@ -141,8 +141,8 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
     # Stratified by step: every campaign has its steps, only their windows vary.
     replicates = np.zeros(BOOTSTRAP)
-    for step in dict.fromkeys(step for step, _ in removed_by_block):
-        gained = np.array([g for (s, _), g in removed_by_block.items() if s == step])
+    for windows in removed_by_window.values():
+        gained = np.array(list(windows.values()))
         replicates += gained[rng.integers(0, len(gained), (BOOTSTRAP, len(gained)))].sum(axis=1)
     removed_lo, removed_hi = np.percentile(replicates, [2.5, 97.5])
     return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)),
