@@ -42,7 +42,7 @@ from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData
 from .paired import pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
-from .setpoint_timing import timing_by_setpoint
+from .setpoint_timing import LAG, report_lag_ruled_out, timing_by_setpoint
 from .problem import (Fit, MeasuredBase, Problem, cached_columns, counted_by_own_correlation, make_problem,
                       own_correlation_rows)
 from .simulate import simulate_channel
@@ -536,7 +536,12 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
-    hypotheses = tuple(h for h in available if h.name not in withhold)
+    # the bus measures the report lag; where it names none, the ground's data are not asked for one
+    ruled_out = {LAG} if report_lag_ruled_out(setpoint, sheet.drive.cycle_time) else set()
+    data_run["report_lag_hypothesis"] = (
+        "not fitted: the bus measures the report lag and names none (a net shift of that sign would make "
+        "the actuator delay negative)" if ruled_out else "fitted")
+    hypotheses = tuple(h for h in available if h.name not in withhold and h.name not in ruled_out)
     measured = lifted = None
     on_lifted_wheels = read_lifted(data_dir)
     if model_from_data and on_lifted_wheels is not None:

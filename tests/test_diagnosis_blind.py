@@ -141,6 +141,10 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     gap = _diagnose_against_own_twin(run, out)
     assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
     assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
+    # the bus reads no report lag behind the set-point: the ground's data are not asked for one
+    assert gap["data_run"]["setpoint_lag"]["cycles"] < 0.1
+    assert gap["data_run"]["report_lag_hypothesis"].startswith("not fitted")
+    assert "torque_report_lag" not in {e["name"] for e in gap["effects"]}
     twin_meta = json.loads((out / "twin_reference" / "metadata.json").read_text())
     data_meta = json.loads((run / "metadata.json").read_text())
     assert twin_meta["settings"] == data_meta["settings"] and twin_meta["status"] == "complete"
@@ -241,6 +245,7 @@ def test_a_report_lag_beside_an_actuator_delay_is_told_apart_by_the_set_point(tm
     assert named["torque_report_lag"]["magnitude"] == pytest.approx(0.004, abs=1e-4)
     assert named["actuator_delay"]["magnitude"] == pytest.approx(0.008, abs=1e-3)
     assert gap["data_run"]["setpoint_lag"]["cycles"] == pytest.approx(2.0, abs=0.05)
+    assert gap["data_run"]["report_lag_hypothesis"] == "fitted"
 
 
 def test_a_hypothesis_to_withhold_must_be_in_the_library():

@@ -10,7 +10,7 @@ import pytest
 from scipy.ndimage import gaussian_filter1d
 
 from qomni.diagnosis.hypotheses.base import Magnitude
-from qomni.diagnosis.setpoint_timing import timing_by_setpoint
+from qomni.diagnosis.setpoint_timing import report_lag_ruled_out, timing_by_setpoint
 from qomni.ident.recording import Signals
 from qomni.ident.setpoint_lag import SetpointLag, setpoint_lag
 
@@ -122,3 +122,12 @@ def test_no_lag_on_the_bus_changes_nothing(measured):
     """None (no set-points), under half a cycle, or not there (z < 3.29)."""
     delay = _cand("actuator_delay", 3.94, 0.11, True)
     assert timing_by_setpoint([delay], [delay], measured, T_S) == [delay]
+
+
+@pytest.mark.parametrize("measured, ruled_out", [(None, False), (_lag(0.0), True), (_lag(0.6), True),
+                                                  (_lag(4.0, 2.0), True), (_lag(4.0), False), (_lag(1.0), False)])
+def test_where_the_bus_names_no_report_lag_the_ground_is_not_asked_for_one(measured, ruled_out):
+    """With the set-point recorded the report lag is the bus' measurement: where it names none (none there,
+    or under half a cycle), a report lag fitted to the ground's net shift would need a negative actuator
+    delay, so the hypothesis is left out; without set-points (None) the ground's data are all there is."""
+    assert report_lag_ruled_out(measured, T_S) is ruled_out
