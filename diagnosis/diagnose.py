@@ -536,11 +536,12 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
-    # the bus measures the report lag; where it names none, the ground's data are not asked for one
+    # the bus measures the report lag; where it bounds it under any the hypothesis names, the ground's data
+    # are not asked for one
     ruled_out = {LAG} if report_lag_ruled_out(setpoint, sheet.drive.cycle_time) else set()
     data_run["report_lag_hypothesis"] = (
-        "not fitted: the bus measures the report lag and names none (a net shift of that sign would make "
-        "the actuator delay negative)" if ruled_out else "fitted")
+        "not fitted: the bus bounds the report lag under the shortest the hypothesis names (a net shift of "
+        "that sign would make the actuator delay negative)" if ruled_out else "fitted")
     hypotheses = tuple(h for h in available if h.name not in withhold and h.name not in ruled_out)
     measured = lifted = None
     on_lifted_wheels = read_lifted(data_dir)

@@ -18,8 +18,8 @@ at δ_r − s, with the two σ combined: a named delay's magnitude becomes that,
 where it is there by the same z and at least half a cycle. Measured effects are not added to the model:
 the ground's fit of the net shift stays what the model holds.
 
-Where the run records the set-point and the measurement names no report lag, the ground's data are not
-asked for one (:func:`report_lag_ruled_out`): the report lag is what the bus measures, and a net shift of
+Where the run records the set-point and the measurement bounds the report lag under the shortest the
+hypothesis names, the ground's data are not asked for one (:func:`report_lag_ruled_out`): the report lag is what the bus measures, and a net shift of
 the other sign than an actuator delay's would put the torque on the wheels before the master commanded
 it. Without the rule the report-lag hypothesis took up other effects' fast misfit: beside steering-joint
 Stribeck friction it was named at 1.0-7.3 ms where the bus read 0.000-0.002 ms (σ 0.0008 ms).
@@ -30,6 +30,7 @@ import math
 from dataclasses import replace
 
 from .hypotheses.base import Magnitude, _ci
+from .hypotheses.torque_report_lag import SHORTEST_CYCLES
 
 #: z of the set-point lag (and of the delay derived from it) for naming: p = 10⁻³ two-sided.
 SETPOINT_Z = 3.29
@@ -61,13 +62,16 @@ def names_report_lag(setpoint, cycle_time: float) -> bool:
 
 def report_lag_ruled_out(setpoint, cycle_time: float) -> bool:
     """Whether the bus rules out a report lag that the ground's data would be asked for: the run records
-    the set-point (``setpoint`` not None) and the measurement names none (:func:`names_report_lag`).
+    the set-point (``setpoint`` not None) and the measured lag's 95 % upper bound (δ_r + 1.96 σ) is under
+    the shortest lag the hypothesis names (``hypotheses.torque_report_lag.SHORTEST_CYCLES``, 0.3 cycles of
+    ``cycle_time``, s).
 
     The ground's data see only the net shift between the motion and the reported torque, the report lag
     less the actuator delay. With the report lag measured at δ_r, a net shift s would put the delay at
-    δ_r − s, below zero for any report lag the hypothesis would name (s ≥ 0.3 cycles, δ_r under half a
-    cycle): a torque acting before it was commanded, which no drive does. So the hypothesis is not fitted."""
-    return setpoint is not None and not names_report_lag(setpoint, cycle_time)
+    δ_r − s, below zero for any report lag s the hypothesis names: a torque acting before it was
+    commanded, which no drive does. So the hypothesis is not fitted. A measurement too uncertain to bound
+    the lag (a short or noisy recording) rules nothing out."""
+    return setpoint is not None and setpoint.value + 1.96 * setpoint.std < SHORTEST_CYCLES * cycle_time
 
 
 def timing_by_setpoint(candidates: list, accepted: list, setpoint, cycle_time: float) -> list:

@@ -7,10 +7,14 @@ from .actuator_delay import shift_columns, shift_magnitude
 from .base import Hypothesis
 
 LAG_STEPS = tuple(range(1, 7))  # cycles of T_s
+#: The gain's physical range; the lag named is gain × step.
+GAIN_RANGE = (0.3, 3.0)
+#: The shortest lag the hypothesis names, in cycles of T_s.
+SHORTEST_CYCLES = GAIN_RANGE[0] * LAG_STEPS[0]
 
 TORQUE_REPORT_LAG = Hypothesis("torque_report_lag", "", ("gain",), shift_columns(-1), LAG_STEPS,
                                magnitude=shift_magnitude("lag of the reported torque (0x6077) behind the applied"),
-                               physical=lambda t: 0.3 < t[0] < 3.0, nonlinear_unit="cycles")
+                               physical=lambda t: GAIN_RANGE[0] < t[0] < GAIN_RANGE[1], nonlinear_unit="cycles")
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (TORQUE_REPORT_LAG,)
