@@ -111,11 +111,11 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
                                  float(np.sqrt(np.mean(after**2)))))
         wins = problem.window_id[i][rows]
         per_window[ch.name] = (wins, before, after)
-        step = removed_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
+        of_step = removed_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
         ids, of_row = np.unique(wins, return_inverse=True)
         gained = np.bincount(of_row, weights=(w * before) ** 2 - (w * after) ** 2, minlength=len(ids))
         for k, g in zip(ids, gained):
-            step[int(k)] = step.get(int(k), 0.0) + float(g)
+            of_step[int(k)] = of_step.get(int(k), 0.0) + float(g)
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
     gain = {}

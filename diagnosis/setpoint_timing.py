@@ -19,10 +19,11 @@ where it is there by the same z and at least half a cycle. Measured effects are 
 the ground's fit of the net shift stays what the model holds.
 
 Where the run records the set-point and the measurement bounds the report lag under the shortest the
-hypothesis names, the ground's data are not asked for one (:func:`report_lag_ruled_out`): the report lag is what the bus measures, and a net shift of
-the other sign than an actuator delay's would put the torque on the wheels before the master commanded
-it. Without the rule the report-lag hypothesis took up other effects' fast misfit: beside steering-joint
-Stribeck friction it was named at 1.0-7.3 ms where the bus read 0.000-0.002 ms (σ 0.0008 ms).
+hypothesis names, the ground's data are not asked for one (:func:`report_lag_ruled_out`): the report lag
+is what the bus measures, and a net shift of the other sign than an actuator delay's would put the torque
+on the wheels before the master commanded it. Without the rule the report-lag hypothesis took up other
+effects' fast misfit: beside steering-joint Stribeck friction it was named at 1.0–7.3 ms where the bus
+read 0.000–0.002 ms (σ 0.0008 ms).
 """
 from __future__ import annotations
 
@@ -53,13 +54,6 @@ def _measured(cand, value: float, sd: float, note: str, named_here: bool = True)
                    notes=[*cand.notes, note])
 
 
-def names_report_lag(setpoint, cycle_time: float) -> bool:
-    """Whether the set-point measurement (a :class:`qomni.ident.setpoint_lag.SetpointLag`, or None where the
-    run does not record the set-point) names a report lag: there (z ≥ :data:`SETPOINT_Z`) and at least
-    :data:`MIN_CYCLES` cycles of ``cycle_time`` (s)."""
-    return setpoint is not None and setpoint.z() >= SETPOINT_Z and setpoint.value >= MIN_CYCLES * cycle_time
-
-
 def report_lag_ruled_out(setpoint, cycle_time: float) -> bool:
     """Whether the bus rules out a report lag that the ground's data would be asked for: the run records
     the set-point (``setpoint`` not None) and the measured lag's 95 % upper bound (δ_r + 1.96 σ) is under
@@ -88,7 +82,7 @@ def timing_by_setpoint(candidates: list, accepted: list, setpoint, cycle_time: f
         The new list of named effects: the ones before (a re-sized one in its place), then the ones the
         measurement names.
     """
-    if not names_report_lag(setpoint, cycle_time):
+    if setpoint is None or setpoint.z() < SETPOINT_Z or setpoint.value < MIN_CYCLES * cycle_time:
         return accepted
     named = {c.hypothesis.name: c for c in accepted}
     first = {c.hypothesis.name: c for c in candidates if c.hypothesis.name in (LAG, DELAY)}
@@ -126,4 +120,4 @@ def timing_by_setpoint(candidates: list, accepted: list, setpoint, cycle_time: f
     return out
 
 
-__all__ = ["SETPOINT_Z", "names_report_lag", "report_lag_ruled_out", "timing_by_setpoint"]
+__all__ = ["SETPOINT_Z", "report_lag_ruled_out", "timing_by_setpoint"]

@@ -10,6 +10,8 @@ from .base import Hypothesis, Magnitude, _ci, _input_torque, _project, _torque_o
 
 
 DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
+#: The shift's gain range a delay or a report lag is physical in; the shift named is gain × step.
+SHIFT_GAIN_RANGE = (0.3, 3.0)
 
 
 def shift_columns(direction: int):
@@ -37,7 +39,7 @@ def shift_magnitude(quantity: str):
 
 ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), shift_columns(+1), DELAY_STEPS,
                             magnitude=shift_magnitude("delay commanded → applied torque"),
-                            physical=lambda t: 0.3 < t[0] < 3.0,
+                            physical=lambda t: SHIFT_GAIN_RANGE[0] < t[0] < SHIFT_GAIN_RANGE[1],
                             nonlinear_unit="cycles")
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).

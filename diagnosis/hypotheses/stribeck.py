@@ -419,9 +419,9 @@ def steering_held_off(all_rows, reference=None) -> str | None:
     campaigns 54 vehicles without steering-joint Stribeck friction (wheel-joint Stribeck friction at both
     ends of its range among them) and every twin at the default steering bandwidth held both sides within
     1.4 LSB; 14 of 21 with steering-joint Stribeck friction held a side 2.3–66 LSB off (docs/diagnosis.md,
-    "The steering held off"). A static measurement, like the lifted wheels' breakaway, it places friction in the steering joints where
-    the lane change does not: peaks narrower than its reversals (0.016–0.031 rad/s) read there z = −1.3
-    to −3.4 while the rotation holds both sides 3.1–11 LSB off.
+    "The steering held off"). A static measurement, like the lifted wheels' breakaway, it places friction
+    in the steering joints where the lane change does not: peaks narrower than its reversals
+    (0.016–0.031 rad/s) read there z = −1.3 to −3.4 while the rotation holds both sides 3.1–11 LSB off.
 
     Args:
         all_rows: the diagnosed run's problem (:mod:`qomni.diagnosis.problem`); its rotation channels'

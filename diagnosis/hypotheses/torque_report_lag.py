@@ -3,18 +3,17 @@ they apply by T_r (a drive that samples its torque actual at the SYNC reports th
 late); T_r profiled. The mirror image of an actuator delay: the residual leads the reported input."""
 from __future__ import annotations
 
-from .actuator_delay import shift_columns, shift_magnitude
+from .actuator_delay import SHIFT_GAIN_RANGE, shift_columns, shift_magnitude
 from .base import Hypothesis
 
 LAG_STEPS = tuple(range(1, 7))  # cycles of T_s
-#: The gain's physical range; the lag named is gain × step.
-GAIN_RANGE = (0.3, 3.0)
 #: The shortest lag the hypothesis names, in cycles of T_s.
-SHORTEST_CYCLES = GAIN_RANGE[0] * LAG_STEPS[0]
+SHORTEST_CYCLES = SHIFT_GAIN_RANGE[0] * LAG_STEPS[0]
 
 TORQUE_REPORT_LAG = Hypothesis("torque_report_lag", "", ("gain",), shift_columns(-1), LAG_STEPS,
                                magnitude=shift_magnitude("lag of the reported torque (0x6077) behind the applied"),
-                               physical=lambda t: GAIN_RANGE[0] < t[0] < GAIN_RANGE[1], nonlinear_unit="cycles")
+                               physical=lambda t: SHIFT_GAIN_RANGE[0] < t[0] < SHIFT_GAIN_RANGE[1],
+                               nonlinear_unit="cycles")
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (TORQUE_REPORT_LAG,)
