@@ -69,11 +69,15 @@ class Evaluation:
     affected: str
     shrink_affected: float
     shrink_affected_ci: tuple[float, float]
-    #: Window-bootstrap 95 % interval of :attr:`removed`: the held-out windows of each step resampled
-    #: within that step (every campaign has its steps; all of a step's channels in a window together),
-    #: so it asks whether the effect removes residual across the campaign's windows, not in a few.
-    #: ``None`` where not computed.
-    removed_ci: tuple[float, float] | None = None
+    #: Σ over the channels of the share of each channel's held-out residual removed, 1 − RSS_after/RSS_before
+    #: (a channel whose residual the effect doubles counts −3): every channel one measurement, whatever
+    #: its count of rows.
+    removed_share: float = 0.0
+    #: Window-bootstrap 95 % interval of :attr:`removed_share`: the held-out windows of each step
+    #: resampled within that step (every campaign has its steps; all of a step's channels in a window
+    #: together), so it asks whether the effect removes residual across the campaign's channels and
+    #: windows, not in a few. ``None`` where not computed.
+    removed_share_ci: tuple[float, float] | None = None
 
     @property
     def removed(self) -> float:
@@ -90,14 +94,15 @@ class Evaluation:
 def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
              rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
     """Held-out residual before (``base``) and after (``ext``), per channel, with window-bootstrap 95 %
-    intervals for the affected channel's shrinkage and for the weighted residual removed over every
-    channel (:attr:`Evaluation.removed_ci`). ``affected``: that channel, when another evaluation of the
-    same effect has chosen it (default: chosen here, see below)."""
+    intervals for the affected channel's shrinkage and for the shares of residual removed summed over
+    every channel (:attr:`Evaluation.removed_share_ci`). ``affected``: that channel, when another
+    evaluation of the same effect has chosen it (default: chosen here, see below)."""
     rng = rng or np.random.default_rng(0)
     out = []
     per_window = {}
-    removed_by_window: dict[str, dict[int, float]] = {}   # step → held-out window → weighted RSS removed
-    rss_b = rss_a = 0.0
+    # step → held-out window → the shares of its channels' held-out residual removed there
+    share_by_window: dict[str, dict[int, float]] = {}
+    rss_b = rss_a = share = 0.0
     for i, ch in enumerate(problem.channels):
         rows = problem.holdout_rows[i]
         if not rows.any():
@@ -105,15 +110,20 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         before = predicted_residual(problem, i, base, rows, cache)
         after = predicted_residual(problem, i, ext, rows, cache)
         w = problem.weights[i]
-        rss_b += float(np.sum((w * before) ** 2))
-        rss_a += float(np.sum((w * after) ** 2))
+        channel_b, channel_a = float(np.sum((w * before) ** 2)), float(np.sum((w * after) ** 2))
+        rss_b += channel_b
+        rss_a += channel_a
         out.append(ChannelShrink(ch.name, float(np.sqrt(np.mean(before**2))),
                                  float(np.sqrt(np.mean(after**2)))))
         wins = problem.window_id[i][rows]
         per_window[ch.name] = (wins, before, after)
-        of_step = removed_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
+        if channel_b <= 0:
+            continue
+        share += 1.0 - channel_a / channel_b
+        of_step = share_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
         ids, of_row = np.unique(wins, return_inverse=True)
-        gained = np.bincount(of_row, weights=(w * before) ** 2 - (w * after) ** 2, minlength=len(ids))
+        gained = np.bincount(of_row, weights=((w * before) ** 2 - (w * after) ** 2) / channel_b,
+                             minlength=len(ids))
         for k, g in zip(ids, gained):
             of_step[int(k)] = of_step.get(int(k), 0.0) + float(g)
     if not out:
@@ -141,12 +151,12 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
     # Stratified by step: every campaign has its steps, only their windows vary.
     replicates = np.zeros(BOOTSTRAP)
-    for windows in removed_by_window.values():
+    for windows in share_by_window.values():
         gained = np.array(list(windows.values()))
         replicates += gained[rng.integers(0, len(gained), (BOOTSTRAP, len(gained)))].sum(axis=1)
-    removed_lo, removed_hi = np.percentile(replicates, [2.5, 97.5])
+    share_lo, share_hi = np.percentile(replicates, [2.5, 97.5])
     return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)),
-                      (float(removed_lo), float(removed_hi)))
+                      share, (float(share_lo), float(share_hi)))
 
 
 def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:

@@ -88,7 +88,9 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "holdout_shrink_beyond_reference_ci": list(c.evaluation.shrink_affected_ci),
         "affected_channel": ev.affected,
         "holdout_removed": c.evaluation.removed,
-        "holdout_removed_ci": None if c.evaluation.removed_ci is None else list(c.evaluation.removed_ci),
+        "holdout_removed_share": c.evaluation.removed_share,
+        "holdout_removed_share_ci": (None if c.evaluation.removed_share_ci is None
+                                     else list(c.evaluation.removed_share_ci)),
         "holdout_channels": {s.name: {"rms_before": s.rms_before, "rms_after": s.rms_after,
                                       "shrink": s.shrink} for s in ev.channels},
         "nonlinear_parameter": None if c.fit.nonlinear is None else
