@@ -69,9 +69,9 @@ class Evaluation:
     affected: str
     shrink_affected: float
     shrink_affected_ci: tuple[float, float]
-    #: Σ over the channels of the share of each channel's held-out residual removed, 1 − RSS_after/RSS_before
-    #: (a channel whose residual the effect doubles counts −3): every channel one measurement, whatever
-    #: its count of rows.
+    #: Σ over the channels of the share of each channel's held-out residual removed,
+    #: 1 − RSS_after/RSS_before (a channel whose residual RMS the effect doubles counts −3): every channel
+    #: one measurement, whatever its count of rows.
     removed_share: float = 0.0
     #: Window-bootstrap 95 % interval of :attr:`removed_share`: the held-out windows of each step
     #: resampled within that step (every campaign has its steps; all of a step's channels in a window
