@@ -102,7 +102,7 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     per_window = {}
     # step → held-out window → the shares of its channels' held-out residual removed there
     share_by_window: dict[str, dict[int, float]] = {}
-    rss_b = rss_a = share = 0.0
+    rss_b = rss_a = 0.0
     for i, ch in enumerate(problem.channels):
         rows = problem.holdout_rows[i]
         if not rows.any():
@@ -119,7 +119,6 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         per_window[ch.name] = (wins, before, after)
         if channel_b <= 0:
             continue
-        share += 1.0 - channel_a / channel_b
         of_step = share_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
         ids, of_row = np.unique(wins, return_inverse=True)
         gained = np.bincount(of_row, weights=((w * before) ** 2 - (w * after) ** 2) / channel_b,
@@ -155,6 +154,7 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         gained = np.array(list(windows.values()))
         replicates += gained[rng.integers(0, len(gained), (BOOTSTRAP, len(gained)))].sum(axis=1)
     share_lo, share_hi = np.percentile(replicates, [2.5, 97.5])
+    share = sum(sum(windows.values()) for windows in share_by_window.values())   # Σ_c 1 − RSS_a/RSS_b
     return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)),
                       share, (float(share_lo), float(share_hi)))
 
