@@ -37,13 +37,15 @@ from .hypotheses.torque_report_lag import SHORTEST_CYCLES
 SETPOINT_Z = 3.29
 #: Shortest lag or delay named, in cycles of T_s.
 MIN_CYCLES = 0.5
+#: z of a two-sided 95 % interval: the magnitudes' intervals and the bound that rules a report lag out.
+Z_95 = 1.96
 
 LAG, DELAY = "torque_report_lag", "actuator_delay"
 
 
 def _sd(magnitude: Magnitude) -> float:
     """σ of a magnitude from its 95 % interval."""
-    return abs(magnitude.ci[1] - magnitude.ci[0]) / (2 * 1.96)
+    return abs(magnitude.ci[1] - magnitude.ci[0]) / (2 * Z_95)
 
 
 def _measured(cand, value: float, sd: float, note: str, named_here: bool = True):
@@ -65,7 +67,7 @@ def report_lag_ruled_out(setpoint, cycle_time: float) -> bool:
     δ_r − s, below zero for any report lag s the hypothesis names: a torque acting before it was
     commanded, which no drive does. So the hypothesis is not fitted. A measurement too uncertain to bound
     the lag (a short or noisy recording) rules nothing out."""
-    return setpoint is not None and setpoint.value + 1.96 * setpoint.std < SHORTEST_CYCLES * cycle_time
+    return setpoint is not None and setpoint.value + Z_95 * setpoint.std < SHORTEST_CYCLES * cycle_time
 
 
 def timing_by_setpoint(candidates: list, accepted: list, setpoint, cycle_time: float) -> list:
