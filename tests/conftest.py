@@ -1,9 +1,15 @@
 """Fixtures shared by the test modules (test doubles themselves: doubles.py)."""
 from __future__ import annotations
 
+import os
 import uuid
 
 import pytest
+
+# pytest-xdist starts its workers with COLUMNS set (80 without a terminal). Rich reads it once, when the
+# CLI's console is made, and would fix every CLI test's width there; unset, the console reads the width
+# whenever it prints, as in a terminal, and a test's own COLUMNS applies.
+os.environ.pop("COLUMNS", None)
 
 from doubles import FakePlant, Master
 from qomni.hil.device.server import VehicleServer

@@ -74,7 +74,7 @@ def _area(module: str) -> str | None:
     return parts[1] if parts[1] in PACKAGES or parts[1] in LEAVES else None
 
 
-@pytest.mark.parametrize("package", PACKAGES + tuple(LEAVES))
+@pytest.mark.parametrize("package", PACKAGES + tuple(sorted(LEAVES)))
 def test_each_package_imports_only_what_the_architecture_allows(package):
     modules = _modules()
     offenders = []
