@@ -1,7 +1,6 @@
 """Tests for ident.fourier (rest-to-rest Fourier design) and ident.excitation (the paper's steps, section 6.2)."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -60,11 +59,9 @@ def test_design_respects_limits(offset):
     assert util > 0.98
 
 
-def test_design_deterministic_and_fast():
+def test_design_deterministic():
     kw = dict(duration=15.0, q_min=-1.0, q_max=1.0, qd_max=1.0, qdd_max=4.0)
-    t0 = time.perf_counter()
     a = fourier.design_fourier_trajectory(seed=11, **kw)
-    assert time.perf_counter() - t0 < 1.0
     b = fourier.design_fourier_trajectory(seed=11, **kw)
     c = fourier.design_fourier_trajectory(seed=12, **kw)
     assert np.array_equal(a.a, b.a) and np.array_equal(a.b, b.b)
