@@ -30,15 +30,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from .hypotheses.base import Magnitude, _ci
+from .hypotheses.base import Z_95, Magnitude, _ci
 from .hypotheses.torque_report_lag import SHORTEST_CYCLES
 
 #: z of the set-point lag (and of the delay derived from it) for naming: p = 10⁻³ two-sided.
 SETPOINT_Z = 3.29
 #: Shortest lag or delay named, in cycles of T_s.
 MIN_CYCLES = 0.5
-#: z of a two-sided 95 % interval: the magnitudes' intervals and the bound that rules a report lag out.
-Z_95 = 1.96
 
 LAG, DELAY = "torque_report_lag", "actuator_delay"
 

@@ -140,8 +140,12 @@ def _tyre_torque(ctx) -> np.ndarray:
     return ctx.sheet.drive.i_G * ctx.st.motor_torque - p[9] * np.tanh(beta_d / EPS_SIGN) - p[8] * beta_d
 
 
+#: z of a two-sided 95 % interval: every magnitude's interval is value ± Z_95·σ.
+Z_95 = 1.96
+
+
 def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
-    return (scale * (value - 1.96 * std), scale * (value + 1.96 * std))
+    return (scale * (value - Z_95 * std), scale * (value + Z_95 * std))
 
 
 def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):

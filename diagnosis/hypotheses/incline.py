@@ -10,7 +10,7 @@ from scipy import stats
 from qomni.conventions import GRAVITY
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, RuleRows, _project, _torque_only
+from .base import Z_95, Hypothesis, Magnitude, RuleRows, _project, _torque_only
 
 
 @_torque_only
@@ -30,7 +30,7 @@ def _incline_magnitude(theta, cov, nonlinear, sheet):
     s = float(np.hypot(theta[0], theta[1]))
     grad = np.array(theta[:2]) / max(s, 1e-12)
     std = float(np.sqrt(max(grad @ cov[:2, :2] @ grad, 0.0)))
-    lo, hi = min(max(s - 1.96 * std, 0.0), 1.0), min(s + 1.96 * std, 1.0)
+    lo, hi = min(max(s - Z_95 * std, 0.0), 1.0), min(s + Z_95 * std, 1.0)
     return Magnitude(math.asin(min(s, 1.0)), (math.asin(lo), math.asin(hi)), "rad", "floor inclination")
 
 

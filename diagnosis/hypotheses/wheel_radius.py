@@ -6,7 +6,7 @@ import math
 from qomni.conventions import SIDE_INDEX
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude
+from .base import Z_95, Hypothesis, Magnitude
 
 
 def _radius_columns(ch: ChannelData, _):
@@ -31,7 +31,7 @@ def _radius_columns(ch: ChannelData, _):
 def _radius_magnitude(theta, cov, nonlinear, sheet):
     v, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
     r = sheet.geometry.r
-    return Magnitude(r / (1 + v), (r / (1 + v + 1.96 * s), r / (1 + v - 1.96 * s)), "m",
+    return Magnitude(r / (1 + v), (r / (1 + v + Z_95 * s), r / (1 + v - Z_95 * s)), "m",
                      "effective wheel radius")
 
 
