@@ -78,6 +78,11 @@ class Evaluation:
     #: together), so it asks whether the effect removes residual across the campaign's channels and
     #: windows, not in a few. ``None`` where not computed.
     removed_share_ci: tuple[float, float] | None = None
+    #: Step → (its channels' shares removed, summed; the standard deviation of that sum over the window
+    #: bootstrap, √n_w · the population standard deviation of its n_w held-out windows' shares): where
+    #: :attr:`removed_share` and the width of its interval come from. A step whose sum is near 0 with a
+    #: large deviation is one the effect does not act on whose residual the refitted parameters move.
+    removed_share_by_step: dict[str, tuple[float, float]] | None = None
 
     @property
     def removed(self) -> float:
@@ -155,8 +160,11 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         replicates += gained[rng.integers(0, len(gained), (BOOTSTRAP, len(gained)))].sum(axis=1)
     share_lo, share_hi = np.percentile(replicates, [2.5, 97.5])
     share = sum(sum(windows.values()) for windows in share_by_window.values())   # Σ_c 1 − RSS_a/RSS_b
+    by_step = {step: (float(sum(windows.values())),
+                      float(math.sqrt(len(windows)) * np.std(list(windows.values()))))
+               for step, windows in share_by_window.items()}
     return Evaluation(out, rss_b, rss_a, affected.name, affected.shrink, (float(lo), float(hi)),
-                      share, (float(share_lo), float(share_hi)))
+                      share, (float(share_lo), float(share_hi)), by_step)
 
 
 def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) -> Fit:

@@ -277,6 +277,13 @@ def test_the_residual_an_effect_removes_is_resampled_over_the_held_out_windows_o
     ev = evaluate(hold, base, ext)
     assert ev.affected == "arc_right/x_ch" and ev.shrink_affected_ci[0] < 0
     assert 0 < ev.removed_share_ci[0] < ev.removed_share < ev.removed_share_ci[1]
+    # the breakdown by step adds up to the shares removed, and its deviations (independent strata, added
+    # in quadrature) give the interval's width
+    steps = ev.removed_share_by_step
+    assert sorted(steps) == ["arc_left", "arc_right", "rotation"]
+    assert sum(share for share, _ in steps.values()) == pytest.approx(ev.removed_share)
+    spread = math.sqrt(sum(sd**2 for _, sd in steps.values()))
+    assert ev.removed_share_ci[1] - ev.removed_share_ci[0] == pytest.approx(2 * 1.96 * spread, rel=0.2)
     # what it removes in one window alone is no confirmation, however large its share there
     for ch in chans:
         ch.phi = np.zeros(N_ROWS)
@@ -284,6 +291,10 @@ def test_the_residual_an_effect_removes_is_resampled_over_the_held_out_windows_o
     chans[0].residual[win == 3] += 2.0
     burst = evaluate(_alternating_windows(chans)[1], base, on_model(LEVEL, None, np.array([2.0]), 10))
     assert burst.removed_share > 0 and burst.shrink_affected > 0.2 and burst.removed_share_ci[0] <= 0
+    # and the breakdown shows where the width comes from: the step of that one window
+    steps = burst.removed_share_by_step
+    assert max(steps, key=lambda step: steps[step][1]) == "arc_left"
+    assert steps["arc_right"] == (0.0, 0.0) and steps["rotation"] == (0.0, 0.0)
 
 
 def test_each_channel_counts_by_the_share_of_its_own_residual_not_by_its_weight():

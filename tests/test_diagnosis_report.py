@@ -39,7 +39,8 @@ def _channel(name: str, step: str, residual: np.ndarray, offset: float) -> Chann
 
 def _evaluation(affected: str, before: float, after: float, ci) -> Evaluation:
     return Evaluation([ChannelShrink(affected, before, after), ChannelShrink("other", 1.0, 1.0)],
-                      10.0, 4.0, affected, 1 - after / before, ci, 0.6, (0.25, 0.9))
+                      10.0, 4.0, affected, 1 - after / before, ci, 0.6, (0.25, 0.9),
+                      {"rotation": (0.45, 0.1), "straight": (0.15, 0.12)})
 
 
 def _candidate(label: str, channel: str, shrink_ci, p: float, significant: bool,
@@ -103,6 +104,8 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert f"[{100 * lo:.1f}, {100 * hi:.1f}]" in page
     assert e["holdout_removed"] == 6.0
     assert e["holdout_removed_share"] == 0.6 and e["holdout_removed_share_ci"] == [0.25, 0.9]
+    assert e["holdout_removed_share_by_step"] == {"rotation": {"share": 0.45, "sd": 0.1},
+                                                 "straight": {"share": 0.15, "sd": 0.12}}
     assert "whiteness or input-correlation test: data: " in page and "; reference (twin): " in page
     assert gap["reference_holdout_rms"]["with_effects"] and gap["reference_simulation"]
     # Figures are embedded, valid PNGs; no file beside the page but the two outputs.
