@@ -146,6 +146,11 @@ class Diagnosis:
     #: the torque channels diagnosed beyond the paired reference run's residual at the same instants
     #: (:mod:`.paired`); empty where the reference is not the data's campaign run again
     paired_channels: list[str] = field(default_factory=list)
+    #: forward selection's rounds after the first effect, in order: the effects already in the model
+    #: (``beside``), the round's level, every hypothesis tested as the further effect with each test of
+    #: its gate (:func:`further_gates`) and its shares of held-out residual removed by step, and the one
+    #: ``named`` (None: the round that ended selection)
+    selection: list[dict] = field(default_factory=list)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -205,8 +210,17 @@ def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
     (21–73 each), so that a 5 ms delay beside wheel-joint friction that removed 62–83 % of every chassis
     channel's held-out residual was rejected for the 22 % RMS it added to the left steering step's
     (docs/diagnosis.md, Forward selection)."""
-    if ev.removed_share_ci is None or ev.removed_share_ci[0] <= 0:
-        return False
+    return _shares_above_zero(ev) and _removes_enough(ev, floor)
+
+
+def _shares_above_zero(ev: evaluation.Evaluation) -> bool:
+    """The shares of held-out residual removed over every channel have an interval above 0."""
+    return ev.removed_share_ci is not None and ev.removed_share_ci[0] > 0
+
+
+def _removes_enough(ev: evaluation.Evaluation, floor: dict | None) -> bool:
+    """MIN_SHRINK_MORE of the affected channel's held-out residual removed, or FLOOR_MULTIPLE_MORE times
+    the model's own-run residual ``floor`` there (where known)."""
     if ev.shrink_affected >= evaluation.MIN_SHRINK_MORE:
         return True
     own = (floor or {}).get(ev.affected, 0.0)
@@ -214,13 +228,14 @@ def _confirms_further(ev: evaluation.Evaluation, floor: dict | None) -> bool:
 
 
 def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
-                 floor=None, rows: RuleRows | None = None):
+                 floor=None, rows: RuleRows | None = None, log: list | None = None):
     """Re-test the remaining hypotheses with the accepted effects in the model, each beyond its level in
     the reference run (``levels``, as in the first round); return the best significant one or None.
 
     The hypotheses' ``resolve`` rules see this round's candidates too (``rows``), but here they may only
     withdraw a name: a candidate stays significant where it passed this round's gate and the rule left it
-    so (the Stribeck rule's promotion rests on the first round's test, not on a further effect's)."""
+    so (the Stribeck rule's promotion rests on the first round's test, not on a further effect's).
+    ``log``: where given, the round is appended to it (``Diagnosis.selection``)."""
     fp, hp, base = _beside(fp, hp, model, accepted_fits, lag, cache)
     taken = {c.hypothesis.name for c in accepted}
     found = []
@@ -230,19 +245,26 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         cand = _fit_last(fp, hp, model, lag, sheet, accepted_fits, h, base, cache, levels)
         if cand is None:
             continue
-        significant = _passes_further(cand, alpha, floor)
+        gates = further_gates(cand, alpha, floor)
+        significant = all(gates.values())
         sub = _as_last_effect(cand, h, sheet, significant,
                               "accepted in forward selection with "
                               + ", ".join(c.hypothesis.label for c in accepted))
-        found.append((sub, cand.fit, significant))
+        found.append((sub, cand.fit, significant, gates))
     if rows is not None:
         subs = [f[0] for f in found]
         for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
             resolve(subs, rows)
-    passed = [(sub, fit) for sub, fit, gate in found if gate and sub.significant]
-    if not passed:
+    passed = [(sub, fit) for sub, fit, gate, _ in found if gate and sub.significant]
+    chosen = max(passed, key=lambda f: f[0].evaluation.removed) if passed else None
+    if log is not None:
+        log.append({"beside": [c.hypothesis.label for c in accepted], "level": alpha,
+                    "named": None if chosen is None else chosen[0].hypothesis.label,
+                    "tested": [_tested_json(sub, gates, gate and sub.significant)
+                               for sub, _, gate, gates in found]})
+    if chosen is None:
         return None
-    sub, fit = max(passed, key=lambda f: f[0].evaluation.removed)
+    sub, fit = chosen
     sub.identifiability = fitting.collinearity(fp, sub.hypothesis, fit.nonlinear, cache)
     return sub, fit
 
@@ -385,11 +407,32 @@ def _retest_last(fp, hp, model, lag, sheet, fits: list[Fit], i: int, h: Hypothes
     return _fit_last(fp, hp, model, lag, sheet, others, h, base, cache, levels)
 
 
+def further_gates(cand: fitting.Candidate, alpha: float, floor: dict | None) -> dict[str, bool]:
+    """Each test of a further effect's gate, by name: p below ``alpha`` (``p_below_level``), its level
+    not zero (``present``), physical (the added effect's part), the shares of held-out residual it removes
+    over every channel above 0 (``shares_above_0``), and enough removed in its affected channel
+    (``affected_channel``; these two are :func:`_confirms_further`)."""
+    ev = cand.evaluation
+    return {"p_below_level": bool(cand.p_value < alpha), "present": bool(fitting.present(cand)),
+            "physical": bool(cand.physical), "shares_above_0": _shares_above_zero(ev),
+            "affected_channel": _removes_enough(ev, floor)}
+
+
 def _passes_further(cand: fitting.Candidate, alpha: float, floor: dict | None) -> bool:
-    """A further effect's gate: p < ``alpha``, present, physical (the added effect's part), confirmed on
-    held-out data (:func:`_confirms_further`)."""
-    return cand.p_value < alpha and fitting.present(cand) and cand.physical \
-        and _confirms_further(cand.evaluation, floor)
+    """A further effect's gate: every test of :func:`further_gates` passed."""
+    return all(further_gates(cand, alpha, floor).values())
+
+
+def _tested_json(cand: fitting.Candidate, gates: dict[str, bool], named: bool) -> dict:
+    """One further-effect candidate of a forward round, as ``Diagnosis.selection`` records it."""
+    ev = cand.evaluation
+    return {"effect": cand.hypothesis.label, "p_value": float(cand.p_value), "gates": gates,
+            "failed": [g for g, ok in gates.items() if not ok], "named": named,
+            "holdout_shrink": ev.shrink_affected, "affected_channel": ev.affected,
+            "holdout_removed_share": ev.removed_share,
+            "holdout_removed_share_ci": None if ev.removed_share_ci is None else list(ev.removed_share_ci),
+            "holdout_removed_share_by_step": {step: {"share": v, "sd": sd} for step, (v, sd)
+                                              in (ev.removed_share_by_step or {}).items()}}
 
 
 def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses, floor):
@@ -591,6 +634,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         resolve(candidates, rows)
     candidates.sort(key=lambda c: (c.significant, c.evaluation.removed), reverse=True)
     accepted, accepted_fits = [], []
+    selection: list[dict] = []
     first = next((c for c in candidates if c.significant), None)
     if first is not None:
         accepted.append(first)
@@ -598,7 +642,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         floor = _own_floor(ref_plain, model, lag, cache)
         while len(accepted) < MAX_EFFECTS:
             more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
-                                floor, rows)
+                                floor, rows, selection)
             if more is None:
                 break
             cand, joint_fit = more
@@ -666,7 +710,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
                      _reference_holdout(ref_plain, accepted_fits, len(base.delta_p)), ref_sim,
-                     model_from_data, equivalent, lifted or {}, paired_names)
+                     model_from_data, equivalent, lifted or {}, paired_names, selection)
 
 
 def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Candidate]) -> dict:

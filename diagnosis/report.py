@@ -128,7 +128,9 @@ def gap_dict(d: Diagnosis) -> dict:
     removed first; the accepted ones carry ``significant: true``), ``verdict``, ``accepted``,
     ``where`` and ``simulation``; with a reference run, ``reference_holdout_rms`` (``model`` and
     ``with_effects``: channel → RMS on the reference run, every row held out, like ``model_holdout_rms``)
-    and ``reference_simulation`` (as ``simulation``).
+    and ``reference_simulation`` (as ``simulation``). ``selection``: forward selection's rounds after the
+    first effect, each hypothesis tested as a further effect with the tests of its gate that it
+    ``failed`` (``Diagnosis.selection``).
 
     An effect's ``holdout_shrink`` is 1 − RMS(after)/RMS(before) on held-out rows of its
     ``affected_channel``: before, the model as identified (with the effects accepted before it);
@@ -147,6 +149,7 @@ def gap_dict(d: Diagnosis) -> dict:
                       "equivalent": [_equivalent_json(o) for o in d.equivalent.get(c.hypothesis.label, [])]}
                      for i, c in enumerate(d.accepted)],
         "effects": ranked,
+        "selection": d.selection,
         "structured_channels": d.structured,
         "holdout": d.holdout,
         "model": d.model_source,
@@ -198,6 +201,51 @@ def _which_table(gap: dict) -> str:
     return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th><th>p (beyond reference)</th>"
             "<th>p (level zero)</th>"
             f"<th>held-out shrink [95 % CI] (channel)</th><th>significant</th><th>separable</th></tr>{rows}</table>")
+
+
+#: A further effect's gate tests (``diagnose.further_gates``) as the report and the CLI word a failure.
+GATE_FAILED = {"p_below_level": "p above the level", "present": "level not distinct from zero",
+               "physical": "not physical", "shares_above_0": "held-out shares' interval reaches 0",
+               "affected_channel": "too little removed in its channel"}
+
+
+def unnamed_further(selection: list[dict]) -> list[tuple[str, float, float, list[str]]]:
+    """The further effects of selection's last round (the model as it ends) that reached the round's level
+    and were not named: (effect, p, level, the failed tests worded as :data:`GATE_FAILED`)."""
+    if not selection:
+        return []
+    last = selection[-1]
+    return [(t["effect"], t["p_value"], last["level"], [GATE_FAILED.get(g, g) for g in t["failed"]]
+             or ["passed; another removed more"])
+            for t in last["tested"] if t["gates"]["p_below_level"] and not t["named"]]
+
+
+def _selection_table(gap: dict) -> str:
+    """Forward selection's rounds: per round the further effects that reached the round's level or were
+    named, with the tests of the gate they failed and where their held-out shares came from."""
+    gate_text = GATE_FAILED
+    rows = []
+    for i, rnd in enumerate(gap.get("selection") or []):
+        for t in rnd["tested"]:
+            if not (t["named"] or t["gates"]["p_below_level"]):
+                continue
+            ci = t["holdout_removed_share_ci"] or [None, None]
+            steps = ", ".join(f"{html.escape(step)} {_fmt(v['share'], '+.2f')} (sd {_fmt(v['sd'], '.2f')})"
+                              for step, v in t["holdout_removed_share_by_step"].items()
+                              if abs(v["share"]) >= 0.005 or v["sd"] >= 0.005)
+            verdict = "named" if t["named"] else "; ".join(gate_text.get(g, g) for g in t["failed"]) \
+                or "passed; another removed more"
+            rows.append(f"<tr class='{'acc' if t['named'] else ''}'><td>{i + 2}</td>"
+                        f"<td>{html.escape(', '.join(rnd['beside']))}</td><td>{html.escape(t['effect'])}</td>"
+                        f"<td>{_fmt(t['p_value'], '.2g')} ({_fmt(rnd['level'], '.2g')})</td>"
+                        f"<td>{_fmt(t['holdout_removed_share'], '.2f')} [{_fmt(ci[0], '.2f')}, "
+                        f"{_fmt(ci[1], '.2f')}]</td><td>{steps}</td><td>{html.escape(verdict)}</td></tr>")
+    if not rows:
+        return ""
+    return ("<p>Further effects that reached their round's level, with the effects already in the model: "
+            "named, or the test of the gate they failed.</p><table><tr><th>round</th><th>beside</th>"
+            "<th>effect</th><th>p (level)</th><th>held-out shares removed [95 % CI]</th>"
+            f"<th>by step: share (sd)</th><th>outcome</th></tr>{''.join(rows)}</table>")
 
 
 def _holdout_table(gap: dict) -> str:
@@ -294,6 +342,7 @@ right: the same channel on the reference run, same scale.</p>
 <h2>Which: hypotheses</h2>
 {_img(*which) if which else ""}
 {_which_table(gap)}
+{_selection_table(gap)}
 <h2>How far: held-out residual</h2>
 {_img(*hold) if hold else ""}
 {_holdout_table(gap)}

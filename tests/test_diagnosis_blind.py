@@ -175,6 +175,12 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
     assert fl["ci"][0] <= fl["magnitude"] <= fl["ci"][1] and fl["ci"][1] < 0   # 0.88: a weaker drive
     assert fl["ci"][0] < -0.12 < fl["ci"][1]
     assert "torque_constant_error (drive fl)" in gap["verdict"]
+    # forward selection's record: each round beside the effects before it, nothing named that failed a test
+    rounds = gap["selection"]
+    assert rounds and rounds[0]["beside"] == [first["name"] + " (" + first["variant"] + ")"]
+    assert all(not (t["named"] and t["failed"]) for r in rounds for t in r["tested"])
+    assert all(set(t["gates"]) == {"p_below_level", "present", "physical", "shares_above_0", "affected_channel"}
+               for r in rounds for t in r["tested"])
 
 
 @pytest.mark.slow

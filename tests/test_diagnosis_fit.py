@@ -261,6 +261,30 @@ def test_a_further_effect_is_confirmed_by_its_share_or_by_what_it_removes_agains
     assert not _confirms_further(evaluation(4.0, 3.0, share_ci=None), None)
 
 
+def test_a_further_effects_gate_names_each_test_it_fails():
+    # What the report lists for a further effect that is not named: each test of the gate by name, and
+    # the gate is passed exactly when every one of them is.
+    from qomni.diagnosis.diagnose import _passes_further, further_gates
+
+    def candidate(p, presence_p, physical, before, after, share_ci):
+        ev = Evaluation([ChannelShrink("arc_left/x_ch", before, after)], 100.0, 90.0, "arc_left/x_ch",
+                        1 - after / before, (-0.3, 0.5), 0.3, share_ci)
+        return NS(p_value=p, presence_p=presence_p, physical=physical, evaluation=ev)
+
+    floor = {"arc_left/x_ch": 1.0}
+    cases = {
+        (): candidate(1e-6, 1e-7, True, 4.0, 3.0, (0.1, 0.5)),
+        ("shares_above_0",): candidate(4e-5, 1e-6, True, 4.0, 3.0, (-0.1, 0.6)),
+        ("p_below_level", "present"): candidate(0.2, 0.3, True, 4.0, 3.0, (0.1, 0.5)),
+        ("physical", "affected_channel"): candidate(1e-6, 1e-7, False, 4.0, 3.9, (0.1, 0.5)),
+    }
+    for failed, cand in cases.items():
+        gates = further_gates(cand, 7e-4, floor)
+        assert set(gates) == {"p_below_level", "present", "physical", "shares_above_0", "affected_channel"}
+        assert tuple(g for g, ok in gates.items() if not ok) == failed
+        assert _passes_further(cand, 7e-4, floor) is (not failed)
+
+
 def test_the_residual_an_effect_removes_is_resampled_over_the_held_out_windows_of_every_step():
     # One effect in three steps, five held-out windows each; in one window of the channel where it
     # removes the largest share its column misfits. That channel's own interval reaches below 0, the

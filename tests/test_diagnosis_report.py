@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from qomni.diagnosis.channels import ChannelData
-from qomni.diagnosis.diagnose import Diagnosis
+from qomni.diagnosis.diagnose import Diagnosis, _tested_json, further_gates
 from qomni.diagnosis.evaluation import ChannelShrink, Evaluation
 from qomni.diagnosis.fit import Candidate
 from qomni.diagnosis.hypotheses.base import Hypothesis, Magnitude
 from qomni.diagnosis.problem import Fit
-from qomni.diagnosis.report import GAP_JSON, REPORT_HTML, write_report
+from qomni.diagnosis.report import GAP_JSON, REPORT_HTML, unnamed_further, write_report
 from qomni.diagnosis.where import breakdown
 
 HOSTILE = "<script>alert('x')</script>&"
@@ -68,6 +68,15 @@ def diagnosis():
                              "shrink": 0.75}}
     ref_sim = {hostile_channel: {"before": {"rms": 0.06, "unit": "N m"},
                                  "after": {"rms": 0.07, "unit": "N m"}, "shrink": -0.17}}
+    # a further effect below its round's level whose held-out shares' interval reaches 0, and one above it
+    near = _candidate(f"mass{HOSTILE}", "rotation/theta_ch", (0.0, 0.2), 1e-5, False, 0.02)
+    near.presence_p = 1e-6
+    near.evaluation = Evaluation([ChannelShrink("rotation/theta_ch", 0.5, 0.43)], 10.0, 9.0,
+                                 "rotation/theta_ch", 0.25, (0.0, 0.4), 0.3, (-0.2, 0.7),
+                                 {"rotation": (0.35, 0.1), f"step{HOSTILE}": (-0.05, 0.3)})
+    level = 1e-3
+    selection = [{"beside": [effect.hypothesis.label], "level": level, "named": None,
+                  "tested": [_tested_json(c, further_gates(c, level, None), False) for c in (near, other)]}]
     fp = SimpleNamespace(channels=chans)
     return Diagnosis(breakdown(chans, 10), [effect, other], [effect], f"unmodelled effect: viscous{HOSTILE}",
                      [], sim, "alternate 1 s windows of the data", f"/runs/{HOSTILE}/identification.json",
@@ -78,7 +87,8 @@ def diagnosis():
                       "spikes": {"repaired": True, "total_corrupt": 3}}, f"/twin/{HOSTILE}",
                      ref, breakdown(ref, 10),
                      {"model": {hostile_channel: 0.05, "rotation/theta_ch": 0.05},
-                      "with_effects": {hostile_channel: 0.07, "rotation/theta_ch": 0.05}}, ref_sim)
+                      "with_effects": {hostile_channel: 0.07, "rotation/theta_ch": 0.05}}, ref_sim,
+                     selection=selection)
 
 
 def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
@@ -106,6 +116,22 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert e["holdout_removed_share"] == 0.6 and e["holdout_removed_share_ci"] == [0.25, 0.9]
     assert e["holdout_removed_share_by_step"] == {"rotation": {"share": 0.45, "sd": 0.1},
                                                  "straight": {"share": 0.15, "sd": 0.12}}
+    # Forward selection: why a further effect below its level was not named, and where its held-out
+    # shares' width came from; one above its level is recorded in gap.json but not listed on the page.
+    near, other = gap["selection"][0]["tested"]
+    accepted = gap["accepted"][0]
+    assert gap["selection"][0]["beside"] == [f"{accepted['name']} ({accepted['variant']})"]
+    assert gap["selection"][0]["named"] is None
+    assert near["failed"] == ["shares_above_0"] and near["holdout_removed_share_ci"] == [-0.2, 0.7]
+    assert near["holdout_removed_share_by_step"]["rotation"] == {"share": 0.35, "sd": 0.1}
+    assert other["failed"] == ["p_below_level", "present"] and not other["named"]
+    assert "held-out shares&#x27; interval reaches 0" in page and html.escape(f"mass{HOSTILE}") in page
+    assert html.escape(f"step{HOSTILE}") + " -0.05 (sd 0.30)" in page and "payload" not in page.split(
+        "Further effects that reached")[1].split("</table>")[0]
+    # what the CLI prints beside the verdict: the last round's effects below its level and not named
+    assert unnamed_further(gap["selection"]) == [(near["effect"], 1e-5, 1e-3,
+                                                ["held-out shares' interval reaches 0"])]
+    assert unnamed_further([]) == []
     assert "whiteness or input-correlation test: data: " in page and "; reference (twin): " in page
     assert gap["reference_holdout_rms"]["with_effects"] and gap["reference_simulation"]
     # Figures are embedded, valid PNGs; no file beside the page but the two outputs.

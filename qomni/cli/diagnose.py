@@ -29,7 +29,7 @@ def diagnose(
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from qomni.diagnosis.diagnose import diagnose_paths
-    from qomni.diagnosis.report import reference_parameters, write_report
+    from qomni.diagnosis.report import reference_parameters, unnamed_further, write_report
 
     if reference is None:
         reference = _twin_reference(model, data, out / "twin_reference", datasheet)
@@ -49,6 +49,9 @@ def diagnose(
                       "yes" if c.significant else "no")
     console.print(table)
     console.print(Text.assemble(("verdict:", "bold"), f" {d.verdict}"))
+    for effect, p, level, failed in unnamed_further(d.selection):
+        console.print(Text(f"not named beside it: {effect} (p = {p:.2g}, level {level:.2g}): "
+                           + "; ".join(failed)))
     json_path, html_path = write_report(d, out)
     console.print(f"reference run: {d.reference}")
     twin_parameters = reference_parameters(d.reference)
