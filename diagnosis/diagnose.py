@@ -260,7 +260,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     if log is not None:
         log.append({"beside": [c.hypothesis.label for c in accepted], "level": alpha,
                     "named": None if chosen is None else chosen[0].hypothesis.label,
-                    "tested": [_tested_json(sub, gates, gate and sub.significant)
+                    "tested": [_tested_json(sub, gates, _outcome(sub, gate, chosen))
                                for sub, _, gate, gates in found]})
     if chosen is None:
         return None
@@ -423,11 +423,25 @@ def _passes_further(cand: fitting.Candidate, alpha: float, floor: dict | None) -
     return all(further_gates(cand, alpha, floor).values())
 
 
-def _tested_json(cand: fitting.Candidate, gates: dict[str, bool], named: bool) -> dict:
+def _outcome(sub: fitting.Candidate, gate: bool, chosen) -> str:
+    """What became of a further effect in its round: ``named``, ``failed`` (a test of its gate), withdrawn
+    by a hypothesis' rule although it passed (``withdrawn by a rule``, with the rule's note where it left
+    one), or passed while another removed more (``passed; another removed more``)."""
+    if chosen is not None and sub is chosen[0]:
+        return "named"
+    if not gate:
+        return "failed"
+    if not sub.significant:
+        return "withdrawn by a rule" + (f": {sub.notes[-1]}" if len(sub.notes) > 1 else "")
+    return "passed; another removed more"
+
+
+def _tested_json(cand: fitting.Candidate, gates: dict[str, bool], outcome: str) -> dict:
     """One further-effect candidate of a forward round, as ``Diagnosis.selection`` records it."""
     ev = cand.evaluation
     return {"effect": cand.hypothesis.label, "p_value": float(cand.p_value), "gates": gates,
-            "failed": [g for g, ok in gates.items() if not ok], "named": named,
+            "failed": [g for g, ok in gates.items() if not ok], "outcome": outcome,
+            "named": outcome == "named",
             "holdout_shrink": ev.shrink_affected, "affected_channel": ev.affected,
             "holdout_removed_share": ev.removed_share,
             "holdout_removed_share_ci": None if ev.removed_share_ci is None else list(ev.removed_share_ci),

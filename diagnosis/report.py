@@ -215,15 +215,18 @@ def unnamed_further(selection: list[dict]) -> list[tuple[str, float, float, list
     if not selection:
         return []
     last = selection[-1]
-    return [(t["effect"], t["p_value"], last["level"], [GATE_FAILED.get(g, g) for g in t["failed"]]
-             or ["passed; another removed more"])
+    return [(t["effect"], t["p_value"], last["level"], _why_not(t))
             for t in last["tested"] if t["gates"]["p_below_level"] and not t["named"]]
+
+
+def _why_not(tested: dict) -> list[str]:
+    """A further effect's failed tests worded as :data:`GATE_FAILED`, or its outcome where it passed."""
+    return [GATE_FAILED.get(g, g) for g in tested["failed"]] or [tested["outcome"]]
 
 
 def _selection_table(gap: dict) -> str:
     """Forward selection's rounds: per round the further effects that reached the round's level or were
     named, with the tests of the gate they failed and where their held-out shares came from."""
-    gate_text = GATE_FAILED
     rows = []
     for i, rnd in enumerate(gap.get("selection") or []):
         for t in rnd["tested"]:
@@ -233,8 +236,7 @@ def _selection_table(gap: dict) -> str:
             steps = ", ".join(f"{html.escape(step)} {_fmt(v['share'], '+.2f')} (sd {_fmt(v['sd'], '.2f')})"
                               for step, v in t["holdout_removed_share_by_step"].items()
                               if abs(v["share"]) >= 0.005 or v["sd"] >= 0.005)
-            verdict = "named" if t["named"] else "; ".join(gate_text.get(g, g) for g in t["failed"]) \
-                or "passed; another removed more"
+            verdict = "named" if t["named"] else "; ".join(_why_not(t))
             rows.append(f"<tr class='{'acc' if t['named'] else ''}'><td>{i + 2}</td>"
                         f"<td>{html.escape(', '.join(rnd['beside']))}</td><td>{html.escape(t['effect'])}</td>"
                         f"<td>{_fmt(t['p_value'], '.2g')} ({_fmt(rnd['level'], '.2g')})</td>"

@@ -179,6 +179,8 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
     rounds = gap["selection"]
     assert rounds and rounds[0]["beside"] == [first["name"] + " (" + first["variant"] + ")"]
     assert all(not (t["named"] and t["failed"]) for r in rounds for t in r["tested"])
+    assert all([t["effect"] for t in r["tested"] if t["named"]] == ([r["named"]] if r["named"] else [])
+               for r in rounds)
     assert all(set(t["gates"]) == {"p_below_level", "present", "physical", "shares_above_0", "affected_channel"}
                for r in rounds for t in r["tested"])
 

@@ -285,6 +285,24 @@ def test_a_further_effects_gate_names_each_test_it_fails():
         assert _passes_further(cand, 7e-4, floor) is (not failed)
 
 
+def test_a_further_effect_that_passed_says_why_it_was_not_named():
+    from qomni.diagnosis.diagnose import _outcome
+
+    def sub(significant, notes=("accepted in forward selection with payload",)):
+        return NS(significant=significant, notes=list(notes))
+
+    best, runner_up = sub(True), sub(True)
+    assert _outcome(best, True, (best, None)) == "named"
+    assert _outcome(runner_up, True, (best, None)) == "passed; another removed more"
+    assert _outcome(sub(False), False, (best, None)) == "failed"
+    assert _outcome(sub(False), False, None) == "failed"
+    withdrawn = sub(False, ["accepted in forward selection with payload",
+                            "the lifted wheels break away above their Coulomb friction"])
+    assert _outcome(withdrawn, True, None) == ("withdrawn by a rule: the lifted wheels break away above their "
+                                               "Coulomb friction")
+    assert _outcome(sub(False), True, None) == "withdrawn by a rule"
+
+
 def test_the_residual_an_effect_removes_is_resampled_over_the_held_out_windows_of_every_step():
     # One effect in three steps, five held-out windows each; in one window of the channel where it
     # removes the largest share its column misfits. That channel's own interval reaches below 0, the

@@ -76,7 +76,7 @@ def diagnosis():
                                  {"rotation": (0.35, 0.1), f"step{HOSTILE}": (-0.05, 0.3)})
     level = 1e-3
     selection = [{"beside": [effect.hypothesis.label], "level": level, "named": None,
-                  "tested": [_tested_json(c, further_gates(c, level, None), False) for c in (near, other)]}]
+                  "tested": [_tested_json(c, further_gates(c, level, None), "failed") for c in (near, other)]}]
     fp = SimpleNamespace(channels=chans)
     return Diagnosis(breakdown(chans, 10), [effect, other], [effect], f"unmodelled effect: viscous{HOSTILE}",
                      [], sim, "alternate 1 s windows of the data", f"/runs/{HOSTILE}/identification.json",
@@ -124,7 +124,7 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert gap["selection"][0]["named"] is None
     assert near["failed"] == ["shares_above_0"] and near["holdout_removed_share_ci"] == [-0.2, 0.7]
     assert near["holdout_removed_share_by_step"]["rotation"] == {"share": 0.35, "sd": 0.1}
-    assert other["failed"] == ["p_below_level", "present"] and not other["named"]
+    assert other["failed"] == ["p_below_level", "present"] and not other["named"] and other["outcome"] == "failed"
     assert "held-out shares&#x27; interval reaches 0" in page and html.escape(f"mass{HOSTILE}") in page
     assert html.escape(f"step{HOSTILE}") + " -0.05 (sd 0.30)" in page and "payload" not in page.split(
         "Further effects that reached")[1].split("</table>")[0]
