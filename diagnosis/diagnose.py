@@ -246,22 +246,21 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
         if cand is None:
             continue
         gates = further_gates(cand, alpha, floor)
-        significant = all(gates.values())
-        sub = _as_last_effect(cand, h, sheet, significant,
+        sub = _as_last_effect(cand, h, sheet, all(gates.values()),
                               "accepted in forward selection with "
                               + ", ".join(c.hypothesis.label for c in accepted))
-        found.append((sub, cand.fit, significant, gates))
+        found.append((sub, cand.fit, gates))
     if rows is not None:
         subs = [f[0] for f in found]
         for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
             resolve(subs, rows)
-    passed = [(sub, fit) for sub, fit, gate, _ in found if gate and sub.significant]
+    passed = [(sub, fit) for sub, fit, gates in found if all(gates.values()) and sub.significant]
     chosen = max(passed, key=lambda f: f[0].evaluation.removed) if passed else None
     if log is not None:
         log.append({"beside": [c.hypothesis.label for c in accepted], "level": alpha,
                     "named": None if chosen is None else chosen[0].hypothesis.label,
-                    "tested": [_tested_json(sub, gates, _outcome(sub, gate, chosen))
-                               for sub, _, gate, gates in found]})
+                    "tested": [_tested_json(sub, gates, _outcome(sub, all(gates.values()), chosen))
+                               for sub, _, gates in found]})
     if chosen is None:
         return None
     sub, fit = chosen
@@ -445,8 +444,7 @@ def _tested_json(cand: fitting.Candidate, gates: dict[str, bool], outcome: str) 
             "holdout_shrink": ev.shrink_affected, "affected_channel": ev.affected,
             "holdout_removed_share": ev.removed_share,
             "holdout_removed_share_ci": None if ev.removed_share_ci is None else list(ev.removed_share_ci),
-            "holdout_removed_share_by_step": {step: {"share": v, "sd": sd} for step, (v, sd)
-                                              in (ev.removed_share_by_step or {}).items()}}
+            "holdout_removed_share_by_step": ev.removed_share_by_step_json()}
 
 
 def _drop_redundant(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses, floor):

@@ -84,6 +84,11 @@ class Evaluation:
     #: large deviation is one the effect does not act on whose residual the refitted parameters move.
     removed_share_by_step: dict[str, tuple[float, float]] | None = None
 
+    def removed_share_by_step_json(self) -> dict:
+        """:attr:`removed_share_by_step` as ``gap.json`` writes it: step → {"share", "sd"}; {} where not
+        computed."""
+        return {step: {"share": v, "sd": sd} for step, (v, sd) in (self.removed_share_by_step or {}).items()}
+
     @property
     def removed(self) -> float:
         """Weighted held-out residual removed (RSS units of the noise; the ranking score)."""

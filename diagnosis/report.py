@@ -91,9 +91,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "holdout_removed_share": c.evaluation.removed_share,
         "holdout_removed_share_ci": (None if c.evaluation.removed_share_ci is None
                                      else list(c.evaluation.removed_share_ci)),
-        "holdout_removed_share_by_step": ({step: {"share": v, "sd": sd} for step, (v, sd)
-                                           in c.evaluation.removed_share_by_step.items()}
-                                          if c.evaluation.removed_share_by_step else None),
+        "holdout_removed_share_by_step": c.evaluation.removed_share_by_step_json() or None,
         "holdout_channels": {s.name: {"rms_before": s.rms_before, "rms_after": s.rms_after,
                                       "shrink": s.shrink} for s in ev.channels},
         "nonlinear_parameter": None if c.fit.nonlinear is None else
