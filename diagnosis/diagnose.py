@@ -716,9 +716,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      simulation,
                      "second run" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
-                     chans, (fp, hp), base, final, evaluation.holdout_rms(hp, base, cache),
-                     evaluation.holdout_rms(hp, evaluation.on_model(None, None, np.zeros(0), len(base.delta_p)),
-                                            cache), data_run,
+                     chans, (fp, hp), base, final, *_holdout_rms(fp, hp, model, base, lag, cache), data_run,
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
                      _reference_holdout(ref_plain, accepted_fits, len(base.delta_p)), ref_sim,
@@ -741,6 +739,18 @@ def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Cand
         if same:
             out[a.hypothesis.label] = same
     return out
+
+
+def _holdout_rms(fp: Problem, hp: Problem, model: IdentificationResult, base: Fit, lag: int,
+                 cache: dict) -> tuple[dict, dict]:
+    """Channel → held-out RMS of the base fit and of the model as identified, on the rows the hypotheses'
+    comparisons hold out (both folds where they are cross-fitted, each by its own base fit)."""
+    as_identified = evaluation.on_model(None, None, np.zeros(0), len(base.delta_p))
+    other = fitting.other_fold_base(fp, hp, model, base, lag, cache) if fitting.CROSS_FIT else None
+    base_also = () if other is None else ((other[1], other[2]),)
+    model_also = () if other is None else ((other[1], as_identified),)
+    return (evaluation.holdout_rms(hp, base, cache, also=base_also),
+            evaluation.holdout_rms(hp, as_identified, cache, also=model_also))
 
 
 def _reference_holdout(ref_problem, accepted_fits: list[Fit], n_base: int) -> dict:

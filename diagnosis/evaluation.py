@@ -37,10 +37,16 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     return r
 
 
-def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None) -> dict[str, float]:
-    """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit."""
-    return {ch.name: float(np.sqrt(np.mean(predicted_residual(problem, i, fit, rows, cache) ** 2)))
-            for i, (ch, rows) in enumerate(zip(problem.channels, problem.holdout_rows)) if rows.any()}
+def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None,
+                also: tuple[tuple[Problem, Fit], ...] = ()) -> dict[str, float]:
+    """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit. ``also``: further
+    folds (held-out problem, its own fit), their held-out rows joined as in :func:`evaluate`."""
+    left: dict[str, list[np.ndarray]] = {}
+    for fold_problem, fold_fit in ((problem, fit), *also):
+        for i, (ch, rows) in enumerate(zip(fold_problem.channels, fold_problem.holdout_rows)):
+            if rows.any():
+                left.setdefault(ch.name, []).append(predicted_residual(fold_problem, i, fold_fit, rows, cache))
+    return {name: float(np.sqrt(np.mean(np.concatenate(parts) ** 2))) for name, parts in left.items()}
 
 
 @dataclass
@@ -101,35 +107,49 @@ class Evaluation:
         return self.shrink_affected >= min_shrink and self.removed > 0
 
 
+#: One fold of a held-out comparison: (held-out problem, fit before, fit after).
+Fold = tuple[Problem, Fit, Fit]
+
+
 def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
-             rng: np.random.Generator | None = None, affected: str | None = None) -> Evaluation:
+             rng: np.random.Generator | None = None, affected: str | None = None,
+             also: tuple[Fold, ...] = ()) -> Evaluation:
     """Held-out residual before (``base``) and after (``ext``), per channel, with window-bootstrap 95 %
     intervals for the affected channel's shrinkage and for the shares of residual removed summed over
     every channel (:attr:`Evaluation.removed_share_ci`). ``affected``: that channel, when another
-    evaluation of the same effect has chosen it (default: chosen here, see below)."""
+    evaluation of the same effect has chosen it (default: chosen here, see below). ``also``: further
+    folds, each held-out problem with its own fits before and after, whose held-out windows are other
+    windows of the same channels (cross-fitting, :func:`.problem.swapped`): their rows join the
+    comparison as if held out by one fit, each window evaluated by the fits that did not see it."""
     rng = rng or np.random.default_rng(0)
+    # channel → [weight, its held-out windows, before, after], one array each per fold
+    rows_of: dict[str, list] = {}
+    for fold_problem, fold_base, fold_ext in ((problem, base, ext), *also):
+        for i, ch in enumerate(fold_problem.channels):
+            rows = fold_problem.holdout_rows[i]
+            if not rows.any():
+                continue
+            entry = rows_of.setdefault(ch.name, [fold_problem.weights[i], [], [], []])
+            entry[1].append(fold_problem.window_id[i][rows])
+            entry[2].append(predicted_residual(fold_problem, i, fold_base, rows, cache))
+            entry[3].append(predicted_residual(fold_problem, i, fold_ext, rows, cache))
     out = []
     per_window = {}
+    gain = {}
     # step → held-out window → the shares of its channels' held-out residual removed there
     share_by_window: dict[str, dict[int, float]] = {}
     rss_b = rss_a = 0.0
-    for i, ch in enumerate(problem.channels):
-        rows = problem.holdout_rows[i]
-        if not rows.any():
-            continue
-        before = predicted_residual(problem, i, base, rows, cache)
-        after = predicted_residual(problem, i, ext, rows, cache)
-        w = problem.weights[i]
+    for name, (w, wins, before, after) in rows_of.items():
+        wins, before, after = np.concatenate(wins), np.concatenate(before), np.concatenate(after)
         channel_b, channel_a = float(np.sum((w * before) ** 2)), float(np.sum((w * after) ** 2))
         rss_b += channel_b
         rss_a += channel_a
-        out.append(ChannelShrink(ch.name, float(np.sqrt(np.mean(before**2))),
-                                 float(np.sqrt(np.mean(after**2)))))
-        wins = problem.window_id[i][rows]
-        per_window[ch.name] = (wins, before, after)
+        out.append(ChannelShrink(name, float(np.sqrt(np.mean(before**2))), float(np.sqrt(np.mean(after**2)))))
+        per_window[name] = (wins, before, after)
+        gain[name] = w ** 2 * len(before)
         if channel_b <= 0:
             continue
-        of_step = share_by_window.setdefault(ch.name.split("/")[0], {})   # channels: "<step>/<quantity>"
+        of_step = share_by_window.setdefault(name.split("/")[0], {})   # channels: "<step>/<quantity>"
         ids, of_row = np.unique(wins, return_inverse=True)
         gained = np.bincount(of_row, weights=((w * before) ** 2 - (w * after) ** 2) / channel_b,
                              minlength=len(ids))
@@ -137,11 +157,6 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
             of_step[int(k)] = of_step.get(int(k), 0.0) + float(g)
     if not out:
         return Evaluation([], 0.0, 0.0, "", 0.0, (0.0, 0.0))
-    gain = {}
-    for i, ch in enumerate(problem.channels):
-        rows = problem.holdout_rows[i]
-        if rows.any():
-            gain[ch.name] = problem.weights[i] ** 2 * rows.sum()
     # The affected channel: of the channels holding at least a tenth of the removed (weighted) residual,
     # the one where the effect removes the largest fraction.
     removed = {c.name: gain[c.name] * (c.rms_before**2 - c.rms_after**2) for c in out}
@@ -181,13 +196,19 @@ def on_model(h: Hypothesis | None, nonlinear, theta: np.ndarray, n_base: int) ->
 
 
 def added_to_identified(problem: Problem, ext: Fit, tail: int, affected: str,
-                        cache: dict | None = None) -> Evaluation:
+                        cache: dict | None = None, also: tuple[tuple[Problem, Fit], ...] = ()) -> Evaluation:
     """Held-out residual of the model as identified (with the already accepted effects, all but the last
     ``tail`` coefficients of ``ext``) before and after adding the effect at ``ext``'s fitted level, both
     with the base parameters as identified: gap.json's ``holdout_shrink``. Evaluated in the ``affected``
-    channel of the comparison from the base fit."""
-    before = ext.theta.copy()
-    before[len(before) - tail:] = 0.0
+    channel of the comparison from the base fit. ``also``: further folds (held-out problem, that fold's
+    ``ext``), as in :func:`evaluate`."""
     n = len(ext.delta_p)
-    return evaluate(problem, on_model(ext.hypothesis, ext.nonlinear, before, n),
-                    on_model(ext.hypothesis, ext.nonlinear, ext.theta, n), cache, affected=affected)
+
+    def before_after(fit: Fit) -> tuple[Fit, Fit]:
+        before = fit.theta.copy()
+        before[len(before) - tail:] = 0.0
+        return (on_model(fit.hypothesis, fit.nonlinear, before, n),
+                on_model(fit.hypothesis, fit.nonlinear, fit.theta, n))
+
+    return evaluate(problem, *before_after(ext), cache, affected=affected,
+                    also=tuple((p, *before_after(f)) for p, f in also))

@@ -36,7 +36,7 @@ from qomni.ident.result import IdentificationResult
 from .channels import ChannelData
 from .hypotheses.base import Hypothesis, Magnitude, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate, predicted_residual
-from .problem import Fit, Problem, cached_columns
+from .problem import Fit, Problem, cached_columns, swapped
 
 #: Significance level of the F test (first effect; further effects in forward selection: alpha_more).
 #: The F test with n/L effective rows is conservative; the held-out shrinkage is the second gate.
@@ -58,6 +58,9 @@ def alpha_more(tested: int) -> float:
 PRIOR_STD_FACTOR = 3.0
 #: Effect columns explained to more than this R² by the base columns are not separable from them.
 COLLINEAR_R2 = 0.98
+#: Whether held-out comparisons on alternate windows are cross-fitted: each hypothesis fitted a second
+#: time on the held-out windows and evaluated on the fitted ones, so every window is held out once.
+CROSS_FIT = True
 
 
 def _shift(h: Hypothesis | None, nonlinear, theta0, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
@@ -308,27 +311,26 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     are physically admissible (``h.physical``) the best is taken; only when none is, the best of all
     (then reported as physically impossible). A short delay fits a long grid delay at a gain below its
     bound about as well as the right one at gain 1, and the unconstrained optimum would discard it."""
-    fits = []
-    for nonlinear in h.grid:
-        theta0 = None if reference is None else reference.get(nonlinear)
-        ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
-        if ext is not None:
-            fits.append((ext.rss, bool(h.physical(ext.theta)), ext, theta0))
-    if not fits:
+    profiled = _profile(fit_problem, model, h, lag, cache, reference)
+    if profiled is None:
         return None
-    admissible = [f for f in fits if f[1]] or fits
-    _, _, best, theta0 = min(admissible, key=lambda f: f[0])
+    best, theta0 = profiled
     held = len(h.parameters) if hold_tail is None else hold_tail
     test_base = base if theta0 is None else solve(fit_problem, model, h, best.nonlinear, lag, cache,
                                                   theta0=theta0, held=held)
     p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1, tested=held)
-    evaluation = evaluate(hold_problem, test_base, best, cache)
-    added = None if test_base is base else evaluate(hold_problem, base, best, cache)
+    other = _other_fold(fit_problem, hold_problem, model, h, base, lag, cache, reference, held) \
+        if CROSS_FIT else None
+    also = () if other is None else ((other.hold, other.test_base, other.best),)
+    evaluation = evaluate(hold_problem, test_base, best, cache, also=also)
+    added = None if test_base is base else evaluate(
+        hold_problem, base, best, cache, also=() if other is None else ((other.hold, other.base, other.best),))
     # With the base parameters free (a model identified on these data) the base fit is the model
     # re-identified on them, and adding the effect re-fits the parameters too: the shrink is the base
     # fit's. With the parameters held as identified, an effect they absorbed in part would be added on
     # top of what they already hold.
-    from_model = added_to_identified(hold_problem, best, held, (added or evaluation).affected, cache) \
+    from_model = added_to_identified(hold_problem, best, held, (added or evaluation).affected, cache,
+                                     also=() if other is None else ((other.hold, other.best),)) \
         if fit_problem.base_prior else (added or evaluation)
     magnitude = h.magnitude(best.theta, best.theta_cov, best.nonlinear, sheet)
     ident_check = collinearity(fit_problem, h, best.nonlinear, cache)
@@ -357,6 +359,70 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
                           + (", ".join(ident_check["correlated_with"]) or "the base columns together")
                           + ": separable only through the base model's uncertainty")
     return cand
+
+
+def _profile(fit_problem: Problem, model: IdentificationResult, h: Hypothesis, lag: int, cache: dict,
+             reference: dict | None) -> tuple[Fit, np.ndarray | None] | None:
+    """The profile's choice of :func:`fit_hypothesis` on ``fit_problem``: the best physically admissible
+    grid point's fit (the best of all where none is) and its reference level θ₀; None where the
+    hypothesis has no columns."""
+    fits = []
+    for nonlinear in h.grid:
+        theta0 = None if reference is None else reference.get(nonlinear)
+        ext = solve(fit_problem, model, h, nonlinear, lag, cache, theta0=theta0)
+        if ext is not None:
+            fits.append((ext.rss, bool(h.physical(ext.theta)), ext, theta0))
+    if not fits:
+        return None
+    admissible = [f for f in fits if f[1]] or fits
+    _, _, best, theta0 = min(admissible, key=lambda f: f[0])
+    return best, theta0
+
+
+def other_fold_base(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult, base: Fit,
+                    lag: int, cache: dict | None) -> tuple[Problem, Problem, Fit] | None:
+    """The other fold of an alternate-window split (:func:`.problem.swapped`: its fit and held-out
+    problems) and ``base``'s model (its effects at their non-linear values, none re-profiled) fitted on
+    its fit windows, cached by ``base`` in ``cache``; None where the held-out rows are a second run's or
+    ``base``'s model has no column there."""
+    swap = swapped(fit_problem, hold_problem)
+    if swap is None:
+        return None
+    fit_b, hold_b = swap
+    cache = {} if cache is None else cache
+    key = ("other fold's base", id(base))
+    if key not in cache or cache[key][0] is not base:
+        cache[key] = (base, solve(fit_b, model, base.hypothesis, base.nonlinear, lag, cache, theta0=base.theta0))
+    base_b = cache[key][1]
+    return None if base_b is None else (fit_b, hold_b, base_b)
+
+
+@dataclass
+class _Fold:
+    """The other fold of a cross-fitted comparison: its held-out problem and its own fits."""
+
+    hold: Problem
+    base: Fit
+    test_base: Fit
+    best: Fit
+
+
+def _other_fold(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult, h: Hypothesis,
+                base: Fit, lag: int, cache: dict, reference: dict | None, held: int) -> _Fold | None:
+    """The hypothesis fitted again with the fit and held-out windows swapped (:func:`.problem.swapped`):
+    its own profile, base fit and test base on the other windows, so that every window is held out
+    from the fits it is evaluated by. None where the held-out rows are a second run's."""
+    other = other_fold_base(fit_problem, hold_problem, model, base, lag, cache)
+    if other is None:
+        return None
+    fit_b, hold_b, base_b = other
+    profiled = _profile(fit_b, model, h, lag, cache, reference)
+    if profiled is None or base_b is None:
+        return None
+    best_b, theta0_b = profiled
+    test_base_b = base_b if theta0_b is None else solve(fit_b, model, h, best_b.nonlinear, lag, cache,
+                                                        theta0=theta0_b, held=held)
+    return _Fold(hold_b, base_b, test_base_b, best_b)
 
 
 def present(cand: Candidate) -> bool:

@@ -46,6 +46,9 @@ class Problem:
     #: Per channel, rows per independent row where it differs from :func:`channel_lag` (None: that lag);
     #: set by :func:`counted_by_own_correlation`.
     correlation: list[float | None] | None = None
+    #: Whether the fit and held-out rows are the even and odd time windows of the same channels
+    #: (:func:`make_problem` without a second run): then the two can swap roles (:func:`swapped`).
+    alternate: bool = False
 
     def correlation_rows(self, i: int, lag: int) -> float:
         """Rows of channel ``i`` that count as one independent row (weights and n/L of the F test)."""
@@ -154,9 +157,10 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         sigma = float(np.sqrt(np.mean(r ** 2))) if sel.any() else 1.0
         weights.append(1.0 / (max(sigma, 1e-15) * math.sqrt(channel_lag(ch, lag))))
     weights = np.array(weights)
-    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins, base_prior, measured)
+    fit = Problem(channels, fit_rows, [np.zeros_like(f) for f in fit_rows], weights, wins, base_prior, measured,
+                  alternate=holdout is None)
     if holdout is None:
-        return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior, measured)
+        return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior, measured, alternate=True)
     by_name = {c.name: i for i, c in enumerate(channels)}
     h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
     h_rows = [c.fitted.copy() for c in holdout]
@@ -170,7 +174,25 @@ def restrict(problem: Problem, keep) -> Problem:
     return Problem([problem.channels[i] for i in idx], [problem.fit_rows[i] for i in idx],
                    [problem.holdout_rows[i] for i in idx], problem.weights[idx],
                    [problem.window_id[i] for i in idx], problem.base_prior, problem.measured,
-                   None if problem.correlation is None else [problem.correlation[i] for i in idx])
+                   None if problem.correlation is None else [problem.correlation[i] for i in idx],
+                   problem.alternate)
+
+
+def swapped(fit_problem: Problem, hold_problem: Problem) -> tuple[Problem, Problem] | None:
+    """The other fold of an alternate-window split: the held-out windows fitted and the fitted ones held
+    out, with the same channels, weights and row counting (cross-fitting: every window is held out
+    once). None where the two problems are not such a split (a second run holds the held-out rows).
+
+    Raises:
+        ValueError: the problems are an alternate split of different channels."""
+    if not (fit_problem.alternate and hold_problem.alternate):
+        return None
+    if [c.name for c in fit_problem.channels] != [c.name for c in hold_problem.channels]:
+        raise ValueError("an alternate-window split holds the same channels in its fit and held-out problems")
+    fit_b = replace(fit_problem, fit_rows=hold_problem.holdout_rows,
+                    holdout_rows=[np.zeros_like(r) for r in hold_problem.holdout_rows])
+    hold_b = replace(hold_problem, fit_rows=fit_problem.fit_rows, holdout_rows=fit_problem.fit_rows)
+    return fit_b, hold_b
 
 
 @dataclass

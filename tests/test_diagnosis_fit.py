@@ -689,3 +689,86 @@ def test_beside_accepted_effects_only_the_torque_channels_are_weighted_again():
     fit_b, hold_b, _ = _beside(fit_p, hold_p, MODEL, [accepted], 1, {})
     assert fit_b.weights[0] == pytest.approx(1.0, rel=0.15) and hold_b.weights[0] == fit_b.weights[0]
     assert fit_b.weights[1] == hold_b.weights[1] == 1 / 20.0
+
+
+def _cross_fitted(channels):
+    """:func:`_alternating_windows` marked as an alternate split of one run, as make_problem marks it."""
+    fit, hold = _alternating_windows(channels)
+    fit.alternate = hold.alternate = True
+    return fit, hold
+
+
+LEVEL_SIZED = Hypothesis("level", "", ("c",), lambda ch, _: ch.phi[:, None], magnitude=lambda t, cov, nl, sheet: None)
+
+
+def _cross_fitted_level(channels):
+    """The planted level fitted on a cross-fitted split of ``channels``: (fit, held-out, base fit, candidate)."""
+    fit_p, hold_p = _cross_fitted(channels)
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    return fit_p, hold_p, base, fitting.fit_hypothesis(fit_p, hold_p, MODEL, LEVEL_SIZED, base, 1, None, {})
+
+
+def test_the_other_fold_swaps_the_fitted_and_held_out_windows_of_one_run_only():
+    from qomni.diagnosis.problem import swapped
+
+    rng = np.random.default_rng(3)
+    fit, hold = _cross_fitted([_channel("straight/x_ch", rng)])
+    fit_b, hold_b = swapped(fit, hold)
+    assert np.array_equal(fit_b.fit_rows[0], hold.holdout_rows[0]) and not fit_b.holdout_rows[0].any()
+    assert np.array_equal(hold_b.holdout_rows[0], fit.fit_rows[0])
+    assert np.array_equal(fit_b.weights, fit.weights) and fit_b.alternate and hold_b.alternate
+    # held-out rows from a second run are no fold of the fitted run's windows
+    assert swapped(*_alternating_windows([_channel("straight/x_ch", rng)])) is None
+    with pytest.raises(ValueError, match="same channels"):
+        swapped(fit, restrict(hold, lambda ch: False))
+
+
+def test_cross_fitting_holds_out_every_window_once_by_the_fits_that_did_not_see_it():
+    from qomni.diagnosis.evaluation import evaluate
+    from qomni.diagnosis.problem import swapped
+
+    rng = np.random.default_rng(17)
+    ch = _channel("arc_left/x_ch", rng, planted=0.7)
+    fit_p, hold_p, base, cand = _cross_fitted_level([ch])
+    fit_b, hold_b = swapped(fit_p, hold_p)
+    base_b, ext_b = fitting.solve(fit_b, MODEL, None, None, 1), fitting.solve(fit_b, MODEL, LEVEL_SIZED, None, 1)
+    assert ext_b.theta[0] != pytest.approx(cand.fit.theta[0], abs=1e-9)   # its own fit, on the other windows
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    odd, even = hold_p.holdout_rows[0], fit_p.fit_rows[0]
+    after = np.concatenate([ch.residual[odd] - ch.base[odd] @ cand.fit.delta_p - cand.fit.theta[0] * ch.phi[odd],
+                            ch.residual[even] - ch.base[even] @ ext_b.delta_p - ext_b.theta[0] * ch.phi[even]])
+    assert cand.evaluation.channels[0].rms_after == pytest.approx(rms(after))
+    manual = evaluate(hold_p, base, cand.fit, also=((hold_b, base_b, ext_b),))
+    assert cand.evaluation.removed_share_ci == pytest.approx(manual.removed_share_ci)
+    # every window is held out once: ten windows, five from each fold
+    single = evaluate(hold_p, base, cand.fit)
+    assert cand.evaluation.weighted_rss_before > 1.8 * single.weighted_rss_before
+
+
+def test_cross_fitting_narrows_the_shares_interval_by_about_the_square_root_of_two():
+    # the same effect, the same noise: held out over twice the windows, the window bootstrap's interval of
+    # the shares removed is about 1/√2 as wide (over 30 seeds)
+    from qomni.diagnosis.evaluation import evaluate
+
+    ratios = []
+    for seed in range(30):
+        rng = np.random.default_rng(100 + seed)
+        chans = [_channel(n, rng, planted=0.3) for n in ("arc_left/x_ch", "rotation/gamma_ch")]
+        _, hold_p, base, cand = _cross_fitted_level(chans)
+        single = evaluate(hold_p, base, cand.fit)
+        width = lambda ev: ev.removed_share_ci[1] - ev.removed_share_ci[0]  # noqa: E731
+        ratios.append(width(cand.evaluation) / width(single))
+    assert 0.6 < np.median(ratios) < 0.85
+
+
+def test_the_held_out_rms_beside_a_cross_fitted_comparison_is_taken_on_the_same_rows():
+    # gap.json's base_fit_holdout_rms and model_holdout_rms are the "before" of the effects' comparisons:
+    # cross-fitted, every window, each fold's by its own base fit
+    from qomni.diagnosis.diagnose import _holdout_rms
+
+    rng = np.random.default_rng(23)
+    ch = _channel("rotation/gamma_ch", rng, planted=0.5)
+    fit_p, hold_p, base, cand = _cross_fitted_level([ch])
+    base_rms, model_rms = _holdout_rms(fit_p, hold_p, MODEL, base, 1, {})
+    assert base_rms["rotation/gamma_ch"] == pytest.approx(cand.evaluation.channels[0].rms_before)
+    assert model_rms["rotation/gamma_ch"] == pytest.approx(float(np.sqrt(np.mean(ch.residual ** 2))))
