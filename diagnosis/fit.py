@@ -383,8 +383,8 @@ def other_fold_base(fit_problem: Problem, hold_problem: Problem, model: Identifi
                     lag: int, cache: dict | None) -> tuple[Problem, Problem, Fit] | None:
     """The other fold of an alternate-window split (:func:`.problem.swapped`: its fit and held-out
     problems) and ``base``'s model (its effects at their non-linear values, none re-profiled) fitted on
-    its fit windows, cached by ``base`` in ``cache``; None where the held-out rows are a second run's or
-    ``base``'s model has no column there."""
+    its fit windows, cached by ``base`` in ``cache`` (``base`` is the fit of ``fit_problem``, so it names
+    the split); None where the held-out rows are a second run's or ``base``'s model has no column there."""
     swap = swapped(fit_problem, hold_problem)
     if swap is None:
         return None
@@ -411,13 +411,14 @@ def _other_fold(fit_problem: Problem, hold_problem: Problem, model: Identificati
                 base: Fit, lag: int, cache: dict, reference: dict | None, held: int) -> _Fold | None:
     """The hypothesis fitted again with the fit and held-out windows swapped (:func:`.problem.swapped`):
     its own profile, base fit and test base on the other windows, so that every window is held out
-    from the fits it is evaluated by. None where the held-out rows are a second run's."""
+    from the fits it is evaluated by. None where the held-out rows are a second run's or the hypothesis
+    has no column in the other fold's fit windows (the comparison is then the first fold's alone)."""
     other = other_fold_base(fit_problem, hold_problem, model, base, lag, cache)
     if other is None:
         return None
     fit_b, hold_b, base_b = other
     profiled = _profile(fit_b, model, h, lag, cache, reference)
-    if profiled is None or base_b is None:
+    if profiled is None:
         return None
     best_b, theta0_b = profiled
     test_base_b = base_b if theta0_b is None else solve(fit_b, model, h, best_b.nonlinear, lag, cache,
