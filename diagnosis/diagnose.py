@@ -746,7 +746,7 @@ def _holdout_rms(fp: Problem, hp: Problem, model: IdentificationResult, base: Fi
     """Channel → held-out RMS of the base fit and of the model as identified, on the rows the hypotheses'
     comparisons hold out (both folds where they are cross-fitted, each by its own base fit)."""
     as_identified = evaluation.on_model(None, None, np.zeros(0), len(base.delta_p))
-    other = fitting.other_fold_base(fp, hp, model, base, lag, cache) if fitting.CROSS_FIT else None
+    other = fitting.other_fold_base(fp, hp, model, base, lag, cache)
     base_also = () if other is None else ((other[1], other[2]),)
     model_also = () if other is None else ((other[1], as_identified),)
     return (evaluation.holdout_rms(hp, base, cache, also=base_also),

@@ -37,16 +37,29 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     return r
 
 
+def _held_out(folds, cache: dict | None) -> dict[str, tuple[float, np.ndarray, list[np.ndarray]]]:
+    """Channel → (its weight, the windows of its held-out rows, what each fit leaves there), the folds'
+    held-out rows concatenated. ``folds``: (held-out problem, fit, fit, …), every fold with as many fits."""
+    parts: dict[str, list] = {}
+    for fold_problem, *fits in folds:
+        for i, ch in enumerate(fold_problem.channels):
+            rows = fold_problem.holdout_rows[i]
+            if not rows.any():
+                continue
+            entry = parts.setdefault(ch.name, [fold_problem.weights[i], [], [[] for _ in fits]])
+            entry[1].append(fold_problem.window_id[i][rows])
+            for left, fit in zip(entry[2], fits):
+                left.append(predicted_residual(fold_problem, i, fit, rows, cache))
+    return {name: (w, np.concatenate(wins), [np.concatenate(left) for left in lefts])
+            for name, (w, wins, lefts) in parts.items()}
+
+
 def holdout_rms(problem: Problem, fit: Fit, cache: dict | None = None,
                 also: tuple[tuple[Problem, Fit], ...] = ()) -> dict[str, float]:
     """Channel → RMS of what ``fit`` leaves on the held-out rows, in the channel's unit. ``also``: further
     folds (held-out problem, its own fit), their held-out rows joined as in :func:`evaluate`."""
-    left: dict[str, list[np.ndarray]] = {}
-    for fold_problem, fold_fit in ((problem, fit), *also):
-        for i, (ch, rows) in enumerate(zip(fold_problem.channels, fold_problem.holdout_rows)):
-            if rows.any():
-                left.setdefault(ch.name, []).append(predicted_residual(fold_problem, i, fold_fit, rows, cache))
-    return {name: float(np.sqrt(np.mean(np.concatenate(parts) ** 2))) for name, parts in left.items()}
+    return {name: float(np.sqrt(np.mean(left ** 2)))
+            for name, (_, _, (left,)) in _held_out(((problem, fit), *also), cache).items()}
 
 
 @dataclass
@@ -122,25 +135,13 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
     windows of the same channels (cross-fitting, :func:`.problem.swapped`): their rows join the
     comparison as if held out by one fit, each window evaluated by the fits that did not see it."""
     rng = rng or np.random.default_rng(0)
-    # channel → [weight, its held-out windows, before, after], one array each per fold
-    rows_of: dict[str, list] = {}
-    for fold_problem, fold_base, fold_ext in ((problem, base, ext), *also):
-        for i, ch in enumerate(fold_problem.channels):
-            rows = fold_problem.holdout_rows[i]
-            if not rows.any():
-                continue
-            entry = rows_of.setdefault(ch.name, [fold_problem.weights[i], [], [], []])
-            entry[1].append(fold_problem.window_id[i][rows])
-            entry[2].append(predicted_residual(fold_problem, i, fold_base, rows, cache))
-            entry[3].append(predicted_residual(fold_problem, i, fold_ext, rows, cache))
     out = []
     per_window = {}
     gain = {}
     # step → held-out window → the shares of its channels' held-out residual removed there
     share_by_window: dict[str, dict[int, float]] = {}
     rss_b = rss_a = 0.0
-    for name, (w, wins, before, after) in rows_of.items():
-        wins, before, after = np.concatenate(wins), np.concatenate(before), np.concatenate(after)
+    for name, (w, wins, (before, after)) in _held_out(((problem, base, ext), *also), cache).items():
         channel_b, channel_a = float(np.sum((w * before) ** 2)), float(np.sum((w * after) ** 2))
         rss_b += channel_b
         rss_a += channel_a

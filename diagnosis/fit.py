@@ -319,10 +319,9 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     test_base = base if theta0 is None else solve(fit_problem, model, h, best.nonlinear, lag, cache,
                                                   theta0=theta0, held=held)
     p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1, tested=held)
-    other = _other_fold(fit_problem, hold_problem, model, h, base, lag, cache, reference, held) \
-        if CROSS_FIT else None
-    also = () if other is None else ((other.hold, other.test_base, other.best),)
-    evaluation = evaluate(hold_problem, test_base, best, cache, also=also)
+    other = _other_fold(fit_problem, hold_problem, model, h, base, lag, cache, reference, held)
+    evaluation = evaluate(hold_problem, test_base, best, cache,
+                          also=() if other is None else ((other.hold, other.test_base, other.best),))
     added = None if test_base is base else evaluate(
         hold_problem, base, best, cache, also=() if other is None else ((other.hold, other.base, other.best),))
     # With the base parameters free (a model identified on these data) the base fit is the model
@@ -384,8 +383,9 @@ def other_fold_base(fit_problem: Problem, hold_problem: Problem, model: Identifi
     """The other fold of an alternate-window split (:func:`.problem.swapped`: its fit and held-out
     problems) and ``base``'s model (its effects at their non-linear values, none re-profiled) fitted on
     its fit windows, cached by ``base`` in ``cache`` (``base`` is the fit of ``fit_problem``, so it names
-    the split); None where the held-out rows are a second run's or ``base``'s model has no column there."""
-    swap = swapped(fit_problem, hold_problem)
+    the split); None where cross-fitting is off (``CROSS_FIT``), the held-out rows are a second run's or
+    ``base``'s model has no column there."""
+    swap = swapped(fit_problem, hold_problem) if CROSS_FIT else None
     if swap is None:
         return None
     fit_b, hold_b = swap
@@ -411,8 +411,9 @@ def _other_fold(fit_problem: Problem, hold_problem: Problem, model: Identificati
                 base: Fit, lag: int, cache: dict, reference: dict | None, held: int) -> _Fold | None:
     """The hypothesis fitted again with the fit and held-out windows swapped (:func:`.problem.swapped`):
     its own profile, base fit and test base on the other windows, so that every window is held out
-    from the fits it is evaluated by. None where the held-out rows are a second run's or the hypothesis
-    has no column in the other fold's fit windows (the comparison is then the first fold's alone)."""
+    from the fits it is evaluated by. None where cross-fitting is off, the held-out rows are a second
+    run's or the hypothesis has no column in the other fold's fit windows (the comparison is then the
+    first fold's alone)."""
     other = other_fold_base(fit_problem, hold_problem, model, base, lag, cache)
     if other is None:
         return None
