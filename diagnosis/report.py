@@ -239,13 +239,23 @@ def _selection_table(gap: dict) -> str:
                         f"<td>{html.escape(', '.join(rnd['beside']))}</td><td>{html.escape(t['effect'])}</td>"
                         f"<td>{_fmt(t['p_value'], '.2g')} ({_fmt(rnd['level'], '.2g')})</td>"
                         f"<td>{_fmt(t['holdout_removed_share'], '.2f')} [{_fmt(ci[0], '.2f')}, "
-                        f"{_fmt(ci[1], '.2f')}]</td><td>{steps}</td><td>{html.escape(verdict)}</td></tr>")
+                        f"{_fmt(ci[1], '.2f')}]</td><td>{_affected_shrink(t)}</td><td>{steps}</td>"
+                        f"<td>{html.escape(verdict)}</td></tr>")
     if not rows:
         return ""
     return ("<p>Further effects that reached their round's level, with the effects already in the model: "
             "named, or the test of the gate they failed.</p><table><tr><th>round</th><th>beside</th>"
             "<th>effect</th><th>p (level)</th><th>held-out shares removed [95 % CI]</th>"
+            "<th>affected channel: held-out shrink [95 % CI]</th>"
             f"<th>by step: share (sd)</th><th>outcome</th></tr>{''.join(rows)}</table>")
+
+
+def _affected_shrink(tested: dict) -> str:
+    """A further effect's affected channel and its held-out shrink in %, with its interval where
+    ``gap.json`` records one."""
+    ci = tested.get("holdout_shrink_ci")
+    interval = f" [{_fmt(100 * ci[0], '.1f')}, {_fmt(100 * ci[1], '.1f')}]" if ci else ""
+    return f"{html.escape(tested['affected_channel'])}: {_fmt(100 * tested['holdout_shrink'], '.1f')} %{interval}"
 
 
 def _holdout_table(gap: dict) -> str:

@@ -124,6 +124,8 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert gap["selection"][0]["named"] is None
     assert near["failed"] == ["shares_above_0"] and near["holdout_removed_share_ci"] == [-0.2, 0.7]
     assert near["holdout_removed_share_by_step"]["rotation"] == {"share": 0.35, "sd": 0.1}
+    assert near["affected_channel"] == "rotation/theta_ch" and near["holdout_shrink_ci"] == [0.0, 0.4]
+    assert "rotation/theta_ch: 25.0 % [0.0, 40.0]" in page.split("Further effects that reached")[1]
     assert other["failed"] == ["p_below_level", "present"] and not other["named"] and other["outcome"] == "failed"
     assert "held-out shares&#x27; interval reaches 0" in page and html.escape(f"mass{HOSTILE}") in page
     assert html.escape(f"step{HOSTILE}") + " -0.05 (sd 0.30)" in page and "payload" not in page.split(
