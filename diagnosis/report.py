@@ -191,8 +191,8 @@ def _which_table(gap: dict) -> str:
         f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(unit_text(e['unit']))}</td>"
         f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
         f"<td>{_fmt(e.get('presence_p_value'), '.2g')}</td>"
-        f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} % [{_fmt(100 * e['holdout_shrink_ci'][0], '.1f')}, "
-        f"{_fmt(100 * e['holdout_shrink_ci'][1], '.1f')}] ({html.escape(e['affected_channel'])})</td>"
+        f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} %{_percent_interval(e['holdout_shrink_ci'])} "
+        f"({html.escape(e['affected_channel'])})</td>"
         f"<td>{'yes' if e['significant'] else 'no'}</td>"
         f"<td>{'yes' if e['identifiability']['separable'] else 'no'}</td></tr>"
         for e in gap["effects"] if e["magnitude"] is not None)
@@ -253,9 +253,13 @@ def _selection_table(gap: dict) -> str:
 def _affected_shrink(tested: dict) -> str:
     """A further effect's affected channel and its held-out shrink in %, with its interval where
     ``gap.json`` records one."""
-    ci = tested.get("holdout_shrink_ci")
-    interval = f" [{_fmt(100 * ci[0], '.1f')}, {_fmt(100 * ci[1], '.1f')}]" if ci else ""
-    return f"{html.escape(tested['affected_channel'])}: {_fmt(100 * tested['holdout_shrink'], '.1f')} %{interval}"
+    return (f"{html.escape(tested['affected_channel'])}: {_fmt(100 * tested['holdout_shrink'], '.1f')} %"
+            f"{_percent_interval(tested.get('holdout_shrink_ci'))}")
+
+
+def _percent_interval(ci) -> str:
+    """A held-out shrink's interval (fractions) as " [lo, hi]" in %, or "" where there is none."""
+    return f" [{_fmt(100 * ci[0], '.1f')}, {_fmt(100 * ci[1], '.1f')}]" if ci else ""
 
 
 def _holdout_table(gap: dict) -> str:
@@ -267,10 +271,8 @@ def _holdout_table(gap: dict) -> str:
     for n, before in gap["model_holdout_rms"].items():
         a = after.get(n, {}).get("rms_after")
         shrink = None if a is None or not before else 1 - a / before
-        c = ci.get(n)
-        interval = f" [{_fmt(100 * c[0], '.1f')}, {_fmt(100 * c[1], '.1f')}]" if c else ""
         rows += (f"<tr><td>{html.escape(n)}</td><td>{_fmt(before)}</td><td>{_fmt(a)}</td>"
-                 f"<td>{'–' if shrink is None else _fmt(100 * shrink, '.1f') + ' %'}{interval}</td>"
+                 f"<td>{'–' if shrink is None else _fmt(100 * shrink, '.1f') + ' %'}{_percent_interval(ci.get(n))}</td>"
                  f"<td>{_fmt(ref_model.get(n))}</td><td>{_fmt(ref_after.get(n))}</td></tr>")
     return ("<table><tr><th>channel</th><th>data: model</th><th>data: + accepted effects</th>"
             "<th>shrink [95 % bootstrap CI]</th><th>reference (twin): model</th>"
