@@ -311,13 +311,11 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     are physically admissible (``h.physical``) the best is taken; only when none is, the best of all
     (then reported as physically impossible). A short delay fits a long grid delay at a gain below its
     bound about as well as the right one at gain 1, and the unconstrained optimum would discard it."""
-    profiled = _profile(fit_problem, model, h, lag, cache, reference)
+    held = len(h.parameters) if hold_tail is None else hold_tail
+    profiled = _profile(fit_problem, model, h, base, lag, cache, reference, held)
     if profiled is None:
         return None
-    best, theta0 = profiled
-    held = len(h.parameters) if hold_tail is None else hold_tail
-    test_base = base if theta0 is None else solve(fit_problem, model, h, best.nonlinear, lag, cache,
-                                                  theta0=theta0, held=held)
+    best, test_base = profiled
     p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1, tested=held)
     other = _other_fold(fit_problem, hold_problem, model, h, base, lag, cache, reference, held)
     evaluation = evaluate(hold_problem, test_base, best, cache,
@@ -360,11 +358,12 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     return cand
 
 
-def _profile(fit_problem: Problem, model: IdentificationResult, h: Hypothesis, lag: int, cache: dict,
-             reference: dict | None) -> tuple[Fit, np.ndarray | None] | None:
+def _profile(fit_problem: Problem, model: IdentificationResult, h: Hypothesis, base: Fit, lag: int,
+             cache: dict, reference: dict | None, held: int) -> tuple[Fit, Fit] | None:
     """The profile's choice of :func:`fit_hypothesis` on ``fit_problem``: the best physically admissible
-    grid point's fit (the best of all where none is) and its reference level θ₀; None where the
-    hypothesis has no columns."""
+    grid point's fit (the best of all where none is), and the base its test compares it with: ``base``
+    where there is no reference level, else the fit with the last ``held`` coefficients held at the
+    reference level θ₀ of that grid point. None where the hypothesis has no columns."""
     fits = []
     for nonlinear in h.grid:
         theta0 = None if reference is None else reference.get(nonlinear)
@@ -375,7 +374,9 @@ def _profile(fit_problem: Problem, model: IdentificationResult, h: Hypothesis, l
         return None
     admissible = [f for f in fits if f[1]] or fits
     _, _, best, theta0 = min(admissible, key=lambda f: f[0])
-    return best, theta0
+    test_base = base if theta0 is None else solve(fit_problem, model, h, best.nonlinear, lag, cache,
+                                                  theta0=theta0, held=held)
+    return best, test_base
 
 
 def other_fold_base(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult, base: Fit,
@@ -418,12 +419,10 @@ def _other_fold(fit_problem: Problem, hold_problem: Problem, model: Identificati
     if other is None:
         return None
     fit_b, hold_b, base_b = other
-    profiled = _profile(fit_b, model, h, lag, cache, reference)
+    profiled = _profile(fit_b, model, h, base_b, lag, cache, reference, held)
     if profiled is None:
         return None
-    best_b, theta0_b = profiled
-    test_base_b = base_b if theta0_b is None else solve(fit_b, model, h, best_b.nonlinear, lag, cache,
-                                                        theta0=theta0_b, held=held)
+    best_b, test_base_b = profiled
     return _Fold(hold_b, base_b, test_base_b, best_b)
 
 
