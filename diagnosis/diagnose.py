@@ -261,7 +261,7 @@ def _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, leve
     if rows is not None:
         subs = [f[0] for f in found]
         for resolve in dict.fromkeys(h.resolve for h in hypotheses if h.resolve is not None):
-            resolve(subs, rows)
+            resolve(subs, replace(rows, level=alpha))
     passed = [(sub, fit) for sub, fit, gates in found if all(gates.values()) and sub.significant]
     chosen = max(passed, key=lambda f: f[0].evaluation.removed) if passed else None
     if log is not None:

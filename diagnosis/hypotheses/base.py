@@ -83,7 +83,9 @@ class RuleRows:
     (:data:`qomni.diagnosis.channels.LANE_CHANGE_STEERING`, not a fitted channel of the diagnosis) of the
     diagnosed run and of the reference run, every row a fit row and paired as the torque channels are, or
     None where the run has no lane change; the lifted wheels' breakaway excess (excess, σ)
-    (:attr:`qomni.ident.rundir.LiftedMeasurement.breakaway`) or None."""
+    (:attr:`qomni.ident.rundir.LiftedMeasurement.breakaway`) or None; the significance level the round's
+    candidates were tested at (None: the first round's, :data:`qomni.diagnosis.fit.ALPHA`; in forward
+    selection :func:`qomni.diagnosis.fit.alpha_more`)."""
 
     all_rows: object
     reference: object | None
@@ -94,6 +96,7 @@ class RuleRows:
     steering: object | None = None
     steering_reference: object | None = None
     lifted_breakaway: tuple[float, float] | None = None
+    level: float | None = None
 
 
 def plausible(h: Hypothesis, theta: np.ndarray) -> bool:
