@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
+from rich.text import Text  # noqa: E402
 
 from qomni.blind_suite import draw_cases, probe_case, read_run, run_suite, write_results  # noqa: E402
 
@@ -96,7 +97,7 @@ def range_ends(work: Path, entries, console, quick: bool = True) -> int:
                       f"{row.excursion / row.room:.2f}", "–" if dead is None else f"{1000 * dead:.0f} ms",
                       f"{row.probe.get('steering_bandwidth', float('nan')):.1f}")
         console.print(f"{entry} {params}: {'completed' if row.completed else 'NOT completed'}, peak "
-                      f"{row.peak_torque_ratio:.2f} of the limit ({time.perf_counter() - started:.0f} s)")
+                      f"{row.peak_torque_ratio:.2f} of the limit ({time.perf_counter() - started:.0f} s)", markup=False)
     console.print(table)
     return 1 if failed else 0
 
@@ -206,12 +207,12 @@ def main(argv=None) -> int:
     if args.recorded_only:
         todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
     console.print(f"{len(todo)} cases of master seed {master} in {args.work} ({campaigns} campaigns, "
-                  f"{args.reference} reference)")
+                  f"{args.reference} reference)", markup=False)
     started = time.perf_counter()
 
     def show(r):
-        mark = "[green]✓[/]" if r.top1 and not r.false_positives else "[red]✗[/]"
-        console.print(f"{mark} {r.case.name:40s} → {r.verdict or r.error}  ({r.wall_time:.0f} s)")
+        mark = Text("✓", "green") if r.top1 and not r.false_positives else Text("✗", "red")
+        console.print(mark, Text(f"{r.case.name:40s} → {r.verdict or r.error}  ({r.wall_time:.0f} s)"))
 
     runner = probe_case if args.probe else None
     if args.dask_vs_local:
@@ -235,7 +236,8 @@ def main(argv=None) -> int:
     summary = write_results(results, results_path, run)
     table = Table(title="Blind check per effect")
     for col in ("Effect", "Cases", "Top-1", "False positives", "Median held-out shrink", "Min shrink",
-                "Median shrink beyond floor", "Min beyond floor", "Median from base fit", "Min from base fit",
+                "Median shrink beyond floor", "Min beyond floor", "Median gap shrink", "Min gap shrink",
+                "Median from base fit", "Min from base fit",
                 "Missed at range position"):
         table.add_column(col, justify="left" if col == "Effect" else "right")
     for name, e in sorted(summary["per_effect"].items()):
@@ -243,6 +245,7 @@ def main(argv=None) -> int:
         table.add_row(name, str(e["cases"]), f"{e['top1']}/{e['cases']}", str(e["false_positives"]),
                       fmt(e["median_holdout_shrink"]), fmt(e["min_holdout_shrink"]),
                       fmt(e["median_excess_shrink"]), fmt(e["min_excess_shrink"]),
+                      fmt(e.get("median_gap_shrink")), fmt(e.get("min_gap_shrink")),
                       fmt(e["median_beyond_base_fit_shrink"]), fmt(e["min_beyond_base_fit_shrink"]),
                       " ".join(f"{x:.2f}" for x in e.get("missed_range_positions", [])) or "–")
     console.print(table)
@@ -255,7 +258,7 @@ def main(argv=None) -> int:
                   f"triples; cases with a false positive {summary['cases_with_false_positive']}; "
                   f"{time.perf_counter() - started:.0f} s wall")
     for err in summary["errors"]:
-        console.print(f"[red]error[/] {err}")
+        console.print(Text("error", "red"), Text(str(err)))
     return 0 if not summary["errors"] else 1
 
 

@@ -290,6 +290,19 @@ class Candidate:
         theta = np.asarray(self.fit.theta, dtype=float)
         return dict(zip(names, theta[len(theta) - len(names):].tolist()))
 
+    @property
+    def coefficients_ci(self) -> dict[str, list[float]]:
+        """Each of :attr:`coefficients`' 95 % interval, θ ± 1.96 σ with σ from the fit's covariance (the
+        same σ as the presence test's, :func:`presence`): a coefficient the campaign does not determine shows
+        it here (a payload's first moment along the chassis, docs/diagnosis.md, Limits) where the
+        magnitude, a norm over the coefficients, may not."""
+        names = self.hypothesis.parameters
+        theta = np.asarray(self.fit.theta, dtype=float)
+        cov = np.atleast_2d(np.asarray(self.fit.theta_cov, dtype=float))
+        tail = range(len(theta) - len(names), len(theta))
+        return {n: [float(theta[i] - 1.96 * np.sqrt(max(cov[i, i], 0.0))),
+                    float(theta[i] + 1.96 * np.sqrt(max(cov[i, i], 0.0)))] for n, i in zip(names, tail)}
+
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,
                    h: Hypothesis, base: Fit, lag: int, sheet, cache: dict,

@@ -97,6 +97,7 @@ def candidate_json(c: Candidate, rank: int) -> dict:
         "nonlinear_parameter": None if c.fit.nonlinear is None else
         {"value": c.fit.nonlinear, "unit": c.hypothesis.nonlinear_unit},
         "coefficients": c.coefficients,
+        "coefficients_ci": c.coefficients_ci,
         "identifiability": c.identifiability,
         "physical": c.physical,
         "notes": c.notes,

@@ -27,6 +27,8 @@ def test_the_wrong_instance_of_the_right_effect_is_not_top1():
                                                   "min_holdout_shrink": None,
                                                   "median_excess_shrink": None,
                                                   "min_excess_shrink": None,
+                                                  "median_gap_shrink": None,
+                                                  "min_gap_shrink": None,
                                                   "median_beyond_base_fit_shrink": None,
                                                   "min_beyond_base_fit_shrink": None,
                                                   "median_beyond_reference_shrink": None,
@@ -62,6 +64,29 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
     assert e["median_beyond_base_fit_shrink"] == e["min_beyond_base_fit_shrink"] == 0.12
     assert e["median_excess_shrink"] == pytest.approx(1 - np.sqrt((16 - 12.5) / (25 - 12.5)))
     assert score([heavy])["per_effect"]["heavy_steering_units"]["median_excess_shrink"] is None
+
+
+
+def test_the_gap_shrink_counts_only_the_residual_beyond_the_cases_own_twin():
+    """The gap is what the data leave beyond what the model leaves on the case's own reference run (its
+    twin) in the same channel: removing half of the gap's RMS is 50 % there, whatever the twin's floor."""
+    def case(before, after, twin):
+        return CaseResult(Case("rolling_resistance_0_s1", {}, ["rolling_resistance"], 1, "drawn", "rolling_resistance"),
+                          accepted=["rolling_resistance"], accepted_variants=[""],
+                          true_shrink={"rolling_resistance": {"shrink": 1 - after / before, "channel": "rotation/gamma_ch",
+                                                              "rms_before": before, "rms_after": after,
+                                                              "reference_rms": twin}})
+    # gap RMS 4 on a twin floor of 3: before 5; half the gap's RMS removed leaves √(4 + 9)
+    half = case(5.0, np.sqrt(13.0), 3.0)
+    e = score([half])["per_effect"]["rolling_resistance"]
+    assert e["median_gap_shrink"] == pytest.approx(0.5)
+    assert e["median_holdout_shrink"] == pytest.approx(1 - np.sqrt(13.0) / 5.0)
+    # a channel not above its twin has no gap to shrink; a case without the twin's RMS is not counted
+    below = case(2.9, 2.5, 3.0)
+    older = case(5.0, 3.0, None)
+    assert score([below, older])["per_effect"]["rolling_resistance"]["median_gap_shrink"] is None
+    e = score([half, below, older, case(5.0, 3.0, 3.0)])["per_effect"]["rolling_resistance"]
+    assert e["min_gap_shrink"] == pytest.approx(0.5) and e["median_gap_shrink"] == pytest.approx(1.0)
 
 
 def test_traction_limited_rows_are_widened_by_the_margin():

@@ -101,6 +101,9 @@ def test_score_counts_top1_and_false_positives(suite):
         results["ideal"].model_holdout_rms["rotation/gamma_ch"])
     torque = s["per_effect"]["torque_constant_error"]
     assert torque["median_excess_shrink"] >= torque["median_holdout_shrink"] >= 0.5
+    # the gap beyond the case's own reference run (here the ideal vehicle's) shrinks at least as much
+    assert results["torque"].true_shrink["torque_constant_error"]["reference_rms"] > 0
+    assert torque["median_gap_shrink"] >= torque["median_holdout_shrink"]
 
 
 def test_run_directories_hold_no_effect(suite):

@@ -202,3 +202,9 @@ def test_a_further_effects_coefficients_are_its_own_not_the_accepted_ones():
     further.fit = Fit(further.fit.hypothesis, None, np.array([0.0059, -0.0136, 0.0178, 33.2, 33.7]), np.eye(5),
                       np.zeros(10), {}, 1.0, 100.0, 15)
     assert candidate_json(further, 3)["coefficients"] == {"m_x_c": 33.2, "m_y_c": 33.7}
+    # each with its own 95 % interval from the joint covariance's tail
+    cov = np.diag([1.0, 1.0, 1.0, 25.0, 0.25])
+    further.fit = Fit(further.fit.hypothesis, None, further.fit.theta, cov, np.zeros(10), {}, 1.0, 100.0, 15)
+    ci = candidate_json(further, 3)["coefficients_ci"]
+    assert ci["m_x_c"] == pytest.approx([33.2 - 9.8, 33.2 + 9.8])
+    assert ci["m_y_c"] == pytest.approx([33.7 - 0.98, 33.7 + 0.98])

@@ -120,11 +120,13 @@ def _fill(result: CaseResult, d) -> None:
         if c is not None:
             ev = c.from_model
             ch = next((s for s in ev.channels if s.name == ev.affected), None)
+            twin = (d.reference_holdout_rms.get("model") or {}).get(ev.affected)
             result.true_shrink[name] = {"shrink": ev.shrink_affected,
                                         "beyond_base_fit": c.shrink.shrink_affected,
                                         "beyond_reference": c.evaluation.shrink_affected,
                                         "rms_before": ch.rms_before if ch else None,
                                         "rms_after": ch.rms_after if ch else None,
+                                        "reference_rms": twin,
                                         "ci": list(ev.shrink_affected_ci),
                                         "channel": ev.affected,
                                         "magnitude": c.magnitude.value, "unit": c.magnitude.unit}

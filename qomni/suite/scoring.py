@@ -76,7 +76,8 @@ def _range_position(r: CaseResult) -> float | None:
 
 def excess_shrink(rms_before: float, rms_after: float, floor: float) -> float | None:
     """1 − RMS(after)/RMS(before) of the residual beyond the noise floor (the ideal cases' RMS in the same
-    channel, taken as independent of the effect's residual): the share of the effect's own held-out
+    channel, or what the model leaves there on the case's own reference run; taken as independent of the
+    effect's residual): the share of the effect's own held-out
     residual that the fitted hypothesis removes. None when the channel is not above its floor."""
     excess_before = rms_before**2 - floor**2
     if excess_before <= 0:
@@ -89,7 +90,10 @@ def score(results: list[CaseResult]) -> dict:
     held-out shrinkage per effect once the named effect is added to the model as identified: of the whole
     residual in the affected channel (``*_holdout_shrink``) and of its part beyond the ideal cases' floor
     (``*_excess_shrink``, when the suite has ideal cases); and the same effect's shrinkage from the base
-    fit (``*_beyond_base_fit_shrink``: base parameters moved within their prior first) and from the
+    fit (``*_beyond_base_fit_shrink``: base parameters moved within their prior first); of the gap, the
+    residual beyond what the model leaves on the case's own reference run in the same channel (its twin's,
+    or the ideal vehicle's: ``*_gap_shrink``, :func:`excess_shrink` with that run's held-out RMS as the
+    floor, where the case records it and its residual is above it); and from the
     reference run's level of the hypothesis (``median_beyond_reference_shrink``, the significance
     gate's); and where in the effect's realistic range its named and missed cases lie
     (``named_range_positions``, ``missed_range_positions``: 0 the weak end, 1 the strong end, sorted),
@@ -102,7 +106,7 @@ def score(results: list[CaseResult]) -> dict:
     per_effect: dict[str, dict] = {}
     for r in single:
         e = per_effect.setdefault(r.case.entry or r.case.truth[0], {"cases": 0, "top1": 0, "false_positives": 0,
-                                                                    "shrink": [], "excess": [], "base": [],
+                                                                    "shrink": [], "excess": [], "gap": [], "base": [],
                                                                     "beyond": [], "named": [], "missed": []})
         e["cases"] += 1
         e["top1"] += int(r.top1)
@@ -117,12 +121,18 @@ def score(results: list[CaseResult]) -> dict:
                 x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
                 if x is not None:
                     e["excess"].append(x)
+            if t.get("reference_rms") is not None and t.get("rms_before") is not None:
+                x = excess_shrink(t["rms_before"], t["rms_after"], t["reference_rms"])
+                if x is not None:
+                    e["gap"].append(x)
     for e in per_effect.values():
-        s, x, bf, b = e.pop("shrink"), e.pop("excess"), e.pop("base"), e.pop("beyond")
+        s, x, g, bf, b = e.pop("shrink"), e.pop("excess"), e.pop("gap"), e.pop("base"), e.pop("beyond")
         e["median_holdout_shrink"] = float(statistics.median_high(s)) if s else None
         e["min_holdout_shrink"] = float(min(s)) if s else None
         e["median_excess_shrink"] = float(statistics.median_high(x)) if x else None
         e["min_excess_shrink"] = float(min(x)) if x else None
+        e["median_gap_shrink"] = float(statistics.median_high(g)) if g else None
+        e["min_gap_shrink"] = float(min(g)) if g else None
         e["median_beyond_base_fit_shrink"] = float(statistics.median_high(bf)) if bf else None
         e["min_beyond_base_fit_shrink"] = float(min(bf)) if bf else None
         e["median_beyond_reference_shrink"] = float(statistics.median_high(b)) if b else None
