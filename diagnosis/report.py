@@ -190,16 +190,26 @@ def _which_table(gap: dict) -> str:
     rows = "".join(
         f"<tr class='{'acc' if e['significant'] else ''}'><td>{e['rank']}</td><td>{html.escape(e['name'])}</td>"
         f"<td>{html.escape(e['variant'])}</td><td>{_fmt(e['magnitude'])} {html.escape(unit_text(e['unit']))}</td>"
-        f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_fmt(e['p_value'], '.2g')}</td>"
+        f"<td>[{_fmt(e['ci'][0])}, {_fmt(e['ci'][1])}]</td><td>{_coefficients(e)}</td>"
+        f"<td>{_fmt(e['p_value'], '.2g')}</td>"
         f"<td>{_fmt(e.get('presence_p_value'), '.2g')}</td>"
         f"<td>{_fmt(100 * e['holdout_shrink'], '.1f')} %{_percent_interval(e['holdout_shrink_ci'])} "
         f"({html.escape(e['affected_channel'])})</td>"
         f"<td>{'yes' if e['significant'] else 'no'}</td>"
         f"<td>{'yes' if e['identifiability']['separable'] else 'no'}</td></tr>"
         for e in gap["effects"] if e["magnitude"] is not None)
-    return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th><th>p (beyond reference)</th>"
+    return ("<table><tr><th>#</th><th>effect</th><th>variant</th><th>magnitude</th><th>95 % CI</th>"
+            "<th>coefficients [95 % CI]</th><th>p (beyond reference)</th>"
             "<th>p (level zero)</th>"
             f"<th>held-out shrink [95 % CI] (channel)</th><th>significant</th><th>separable</th></tr>{rows}</table>")
+
+
+def _coefficients(effect: dict) -> str:
+    """An effect's own coefficients, each with its 95 % interval where ``gap.json`` records it."""
+    ci = effect.get("coefficients_ci") or {}
+    return "; ".join(html.escape(name) + " " + _fmt(value)
+                     + (f" [{_fmt(ci[name][0])}, {_fmt(ci[name][1])}]" if name in ci else "")
+                     for name, value in (effect.get("coefficients") or {}).items())
 
 
 #: A further effect's gate tests (``diagnose.further_gates``) as the report and the CLI word a failure.

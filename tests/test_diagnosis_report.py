@@ -112,6 +112,10 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
     assert f"[{e['ci'][0]:.4g}, {e['ci'][1]:.4g}]" in page
     lo, hi = e["holdout_shrink_ci"]
     assert f"[{100 * lo:.1f}, {100 * hi:.1f}]" in page
+    # each coefficient with its interval, θ ± 1.96 σ (the fixture's fit has unit covariance)
+    c = e["coefficients"]["c"]
+    assert e["coefficients_ci"] == {"c": [pytest.approx(c - 1.96), pytest.approx(c + 1.96)]}
+    assert f"c {c:.4g} [{c - 1.96:.4g}, {c + 1.96:.4g}]" in page
     assert e["holdout_removed"] == 6.0
     assert e["holdout_removed_share"] == 0.6 and e["holdout_removed_share_ci"] == [0.25, 0.9]
     assert e["holdout_removed_share_by_step"] == {"rotation": {"share": 0.45, "sd": 0.1},
