@@ -124,3 +124,10 @@ def test_the_combined_factor_is_the_inverse_variance_mean_and_keeps_a_drive_both
         kept = _candidate("rl", -0.127, sigma=0.0094)
         resolve_drive([kept], RuleRows(None, None, None, 1, {}, lifted, level=level))
         assert kept.significant and not any("together" in n for n in kept.notes)
+
+
+def test_a_fit_without_a_variance_is_taken_alone_rather_than_dividing_by_zero():
+    c = _candidate("rl", -0.12, sigma=0.0)
+    assert combined_factor(c, _lifted({"rl": 0.88}), "rl") == (-0.12, 0.0)
+    resolve_drive([c], _rows(_lifted({"rl": 0.88})))
+    assert c.significant

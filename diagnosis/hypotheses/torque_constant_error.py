@@ -82,9 +82,12 @@ def combined_factor(c, wheels: dict, wheel: str) -> tuple[float, float]:
     the lifted run together: the inverse-variance weighted mean of the fitted coefficient (σ from the fit's
     covariance) and :func:`lifted_factor`, and its σ. The two are independent measurements of one
     quantity; the lifted one sees the drive alone, the ground's fit sees it through everything the ground
-    does as well."""
+    does as well. A fit without a variance (a degenerate covariance) is taken alone, σ 0."""
     theta = float(c.fit.theta[-1])
-    weight_fit = 1.0 / float(c.fit.theta_cov[-1, -1])
+    variance_fit = float(c.fit.theta_cov[-1, -1])
+    if not variance_fit > 0:
+        return theta, 0.0
+    weight_fit = 1.0 / variance_fit
     lifted, sigma_lifted = lifted_factor(wheels, wheel)
     weight_lifted = 1.0 / sigma_lifted**2
     total = weight_fit + weight_lifted
@@ -96,7 +99,7 @@ def _combined_not_named(c, wheels: dict, wheel: str, level: float) -> str | None
     factor − 1 (:func:`combined_factor`) is not different from 0 at ``level`` (two-sided, normal), or
     smaller than RELEVANT_FACTOR."""
     value, sigma = combined_factor(c, wheels, wheel)
-    p = math.erfc(abs(value) / sigma / math.sqrt(2.0))
+    p = math.erfc(abs(value) / sigma / math.sqrt(2.0)) if sigma > 0 else float(value == 0.0)
     if p < level and abs(value) >= RELEVANT_FACTOR:
         return None
     return (f"the fit and the lifted run together measure drive {wheel}'s factor − 1 at {value:+.4f} ± "
