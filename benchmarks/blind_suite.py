@@ -97,7 +97,8 @@ def range_ends(work: Path, entries, console, quick: bool = True) -> int:
                       f"{row.excursion / row.room:.2f}", "–" if dead is None else f"{1000 * dead:.0f} ms",
                       f"{row.probe.get('steering_bandwidth', float('nan')):.1f}")
         console.print(f"{entry} {params}: {'completed' if row.completed else 'NOT completed'}, peak "
-                      f"{row.peak_torque_ratio:.2f} of the limit ({time.perf_counter() - started:.0f} s)", markup=False)
+                      f"{row.peak_torque_ratio:.2f} of the limit ({time.perf_counter() - started:.0f} s)",
+                      markup=False)
     console.print(table)
     return 1 if failed else 0
 

@@ -34,7 +34,7 @@ from qomni.conventions import EPSILON, P1_NAMES
 from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
-from .hypotheses.base import Hypothesis, Magnitude, plausible
+from .hypotheses.base import Hypothesis, Magnitude, _ci, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate, predicted_residual
 from .problem import Fit, Problem, cached_columns, swapped
 
@@ -292,7 +292,7 @@ class Candidate:
 
     @property
     def coefficients_ci(self) -> dict[str, list[float]]:
-        """Each of :attr:`coefficients`' 95 % interval, θ ± 1.96 σ with σ from the fit's covariance (the
+        """Each of :attr:`coefficients`' 95 % interval, θ ± Z_95 σ with σ from the fit's covariance (the
         same σ as the presence test's, :func:`presence`): a coefficient the campaign does not determine shows
         it here (a payload's first moment along the chassis, docs/diagnosis.md, Limits) where the
         magnitude, a norm over the coefficients, may not."""
@@ -300,8 +300,7 @@ class Candidate:
         theta = np.asarray(self.fit.theta, dtype=float)
         cov = np.atleast_2d(np.asarray(self.fit.theta_cov, dtype=float))
         tail = range(len(theta) - len(names), len(theta))
-        return {n: [float(theta[i] - 1.96 * np.sqrt(max(cov[i, i], 0.0))),
-                    float(theta[i] + 1.96 * np.sqrt(max(cov[i, i], 0.0)))] for n, i in zip(names, tail)}
+        return {n: [float(x) for x in _ci(theta[i], math.sqrt(max(cov[i, i], 0.0)))] for n, i in zip(names, tail)}
 
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import stats
 
 from qomni.conventions import WHEELS
 
@@ -62,13 +63,18 @@ def lifted_factor(wheels: dict, wheel: str) -> tuple[float, float]:
     return 1.0 / ratio - 1.0, std / ratio**2
 
 
+def _fitted_factor(c) -> tuple[float, float]:
+    """Candidate ``c``'s fitted factor − 1 and its variance from the fit's covariance: the variant's
+    coefficient is its fit's last (alone, or after the accepted effects in forward selection)."""
+    return float(c.fit.theta[-1]), float(c.fit.theta_cov[-1, -1])
+
+
 def _lifted_contradicts(c, wheels: dict, wheel: str) -> str | None:
     """Why the lifted run rules out candidate ``c`` (drive ``wheel``'s variant), or None: its fitted
-    factor − 1 and the lifted run's measure of it differ by |z| ≥ LIFTED_Z (σ of the fit from its
-    covariance, of the lifted value from the two wheels' B_w). The variant's coefficient is its fit's last
-    (alone, or after the accepted effects in forward selection)."""
-    theta = float(c.fit.theta[-1])
-    sigma_fit = math.sqrt(float(c.fit.theta_cov[-1, -1]))
+    factor − 1 (:func:`_fitted_factor`) and the lifted run's measure of it differ by |z| ≥ LIFTED_Z (σ of
+    the fit from its covariance, of the lifted value from the two wheels' B_w)."""
+    theta, variance_fit = _fitted_factor(c)
+    sigma_fit = math.sqrt(variance_fit)
     lifted, sigma_lifted = lifted_factor(wheels, wheel)
     z = (theta - lifted) / math.hypot(sigma_fit, sigma_lifted)
     if abs(z) < LIFTED_Z:
@@ -83,8 +89,7 @@ def combined_factor(c, wheels: dict, wheel: str) -> tuple[float, float]:
     covariance) and :func:`lifted_factor`, and its σ. The two are independent measurements of one
     quantity; the lifted one sees the drive alone, the ground's fit sees it through everything the ground
     does as well. A fit without a variance (a degenerate covariance) is taken alone, σ 0."""
-    theta = float(c.fit.theta[-1])
-    variance_fit = float(c.fit.theta_cov[-1, -1])
+    theta, variance_fit = _fitted_factor(c)
     if not variance_fit > 0:
         return theta, 0.0
     weight_fit = 1.0 / variance_fit
@@ -99,7 +104,7 @@ def _combined_not_named(c, wheels: dict, wheel: str, level: float) -> str | None
     factor − 1 (:func:`combined_factor`) is not different from 0 at ``level`` (two-sided, normal), or
     smaller than RELEVANT_FACTOR."""
     value, sigma = combined_factor(c, wheels, wheel)
-    p = math.erfc(abs(value) / sigma / math.sqrt(2.0)) if sigma > 0 else float(value == 0.0)
+    p = float(2 * stats.norm.sf(abs(value) / sigma)) if sigma > 0 else float(value == 0.0)
     if p < level and abs(value) >= RELEVANT_FACTOR:
         return None
     return (f"the fit and the lifted run together measure drive {wheel}'s factor − 1 at {value:+.4f} ± "
