@@ -151,6 +151,10 @@ def main(argv=None) -> int:
                     help="campaign length (default: the results file's, else quick with --quick, else full)")
     ap.add_argument("--singles", type=int, default=None,
                     help="draws per effect (default: the results file's, else 5, 1 with --quick)")
+    ap.add_argument("--pairs", type=int, default=None,
+                    help="two-effect cases (default: the results file's, else 10)")
+    ap.add_argument("--triples", type=int, default=None,
+                    help="three-effect cases (default: the results file's, else 3)")
     ap.add_argument("--master-seed", type=int, default=None,
                     help="the suite's master seed (default: the results file's, else a new random one)")
     ap.add_argument("--reference", choices=("twin", "ideal"), default="twin",
@@ -195,16 +199,19 @@ def main(argv=None) -> int:
     # campaign length, draw count or entry list would score other cases than those recorded there.
     singles = args.singles or recorded.get("singles") or (1 if args.quick else 5)
     campaigns = args.campaigns or ("quick" if args.quick else recorded.get("campaigns", "full"))
+    pairs = args.pairs if args.pairs is not None else recorded.get("pairs", 10)
+    triples = args.triples if args.triples is not None else recorded.get("triples", 3)
     effects = args.effects if args.effects is not None else recorded.get("effects")
-    for key, value in (("campaigns", campaigns), ("singles", singles), ("effects", effects),
+    for key, value in (("campaigns", campaigns), ("singles", singles), ("pairs", pairs), ("triples", triples),
+                       ("effects", effects),
                        ("reference", args.reference)):
         if recorded and key in recorded and recorded[key] != value:
             console.print(f"{results_path} holds a suite with {key} = {recorded[key]!r}, not {value!r}; "
                           f"use another --work", markup=False)
             return 2
-    todo = draw_cases(master, singles=singles, entries=effects)
+    todo = draw_cases(master, singles=singles, pairs=pairs, triples=triples, entries=effects)
     run = {"master_seed": master, "reference": args.reference, "campaigns": campaigns, "singles": singles,
-           "effects": effects}
+           "pairs": pairs, "triples": triples, "effects": effects}
     if args.recorded_only:
         todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
     console.print(f"{len(todo)} cases of master seed {master} in {args.work} ({campaigns} campaigns, "
