@@ -14,6 +14,11 @@ from .problem import Fit, Problem, cached_columns
 MIN_SHRINK = 0.10
 MIN_SHRINK_MORE = 0.20
 BOOTSTRAP = 400
+#: Shrinkage below which a channel is untouched: float64 sums of squares over ≤ 10⁵ rows carry a relative
+#: rounding error up to ~10⁵·2.2·10⁻¹⁶ ≈ 2·10⁻¹¹, so a fit that changes a channel's residual only by
+#: rounding can show a "shrinkage" of 10⁻¹⁵ in every bootstrap replicate. Bounds of the shrinkage's
+#: interval smaller than this are 0 (an interval above 0 means above rounding).
+SHRINK_RESOLUTION = 1e-9
 
 
 def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
@@ -174,6 +179,7 @@ def evaluate(problem: Problem, base: Fit, ext: Fit, cache: dict | None = None,
         pick = rng.integers(0, len(ids), len(ids))
         boot.append(1 - math.sqrt(sa[pick].sum() / max(sb[pick].sum(), 1e-300)))
     lo, hi = (np.percentile(boot, [2.5, 97.5]) if len(ids) > 1 else (affected.shrink, affected.shrink))
+    lo, hi = (0.0 if abs(bound) < SHRINK_RESOLUTION else bound for bound in (lo, hi))
     # Stratified by step: every campaign has its steps, only their windows vary.
     replicates = np.zeros(BOOTSTRAP)
     for windows in share_by_window.values():

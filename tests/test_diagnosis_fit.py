@@ -790,3 +790,18 @@ def test_the_held_out_rms_beside_a_cross_fitted_comparison_is_taken_on_the_same_
     base_rms, model_rms = _holdout_rms(fit_p, hold_p, MODEL, base, 1, {})
     assert base_rms["rotation/gamma_ch"] == pytest.approx(cand.evaluation.channels[0].rms_before)
     assert model_rms["rotation/gamma_ch"] == pytest.approx(float(np.sqrt(np.mean(ch.residual ** 2))))
+
+
+def test_a_fit_that_changes_the_residual_only_by_rounding_has_no_interval_above_0():
+    # An effect at 10⁻¹³ of the planted one removes ~10⁻¹⁴ of the residual in every held-out window:
+    # every bootstrap replicate is "above 0", but only by float rounding, which is no evidence.
+    from qomni.diagnosis.evaluation import SHRINK_RESOLUTION, evaluate, on_model
+    rng = np.random.default_rng(1)
+    chans = [_channel(n, rng, planted=0.5) for n in ("arc_left/x_ch", "rotation/gamma_ch")]
+    _, hold = _alternating_windows(chans)
+    base = on_model(None, None, np.zeros(0), 10)
+    tiny = evaluate(hold, base, on_model(LEVEL, None, np.array([0.5e-13]), 10))
+    assert 0 < tiny.shrink_affected < SHRINK_RESOLUTION
+    assert tiny.shrink_affected_ci == (0.0, 0.0)
+    real = evaluate(hold, base, on_model(LEVEL, None, np.array([0.5]), 10))
+    assert real.shrink_affected_ci[0] > 0.01
