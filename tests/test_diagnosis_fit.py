@@ -805,3 +805,19 @@ def test_a_fit_that_changes_the_residual_only_by_rounding_has_no_interval_above_
     assert tiny.shrink_affected_ci == (0.0, 0.0)
     real = evaluate(hold, base, on_model(LEVEL, None, np.array([0.5]), 10))
     assert real.shrink_affected_ci[0] > 0.01
+
+
+def test_the_first_effect_needs_its_shares_of_residual_removed_above_0():
+    # A significant candidate whose held-out windows disagree on the sign of what it removes (shares
+    # interval reaching below 0) is passed over with a note; the next significant one that passes is
+    # named first, and with none, nothing is.
+    from qomni.diagnosis.diagnose import _first_effect
+
+    def cand(significant, ci):
+        return NS(significant=significant, notes=[],
+                  evaluation=NS(removed_share=sum(ci) / 2, removed_share_ci=ci))
+
+    stick_slip, true_one, weak = cand(True, (-0.06, 0.47)), cand(True, (0.2, 0.9)), cand(False, (0.1, 0.3))
+    assert _first_effect([stick_slip, true_one, weak]) is true_one
+    assert "not above 0: not named first" in stick_slip.notes[0] and not true_one.notes
+    assert _first_effect([cand(True, (-0.06, 0.47)), weak]) is None
