@@ -202,11 +202,12 @@ def main(argv=None) -> int:
     pairs = args.pairs if args.pairs is not None else recorded.get("pairs", 10)
     triples = args.triples if args.triples is not None else recorded.get("triples", 3)
     effects = args.effects if args.effects is not None else recorded.get("effects")
+    held = {"pairs": 10, "triples": 3, **recorded} if recorded else {}   # a file from before the options
     for key, value in (("campaigns", campaigns), ("singles", singles), ("pairs", pairs), ("triples", triples),
                        ("effects", effects),
                        ("reference", args.reference)):
-        if recorded and key in recorded and recorded[key] != value:
-            console.print(f"{results_path} holds a suite with {key} = {recorded[key]!r}, not {value!r}; "
+        if key in held and held[key] != value:
+            console.print(f"{results_path} holds a suite with {key} = {held[key]!r}, not {value!r}; "
                           f"use another --work", markup=False)
             return 2
     todo = draw_cases(master, singles=singles, pairs=pairs, triples=triples, entries=effects)

@@ -206,13 +206,15 @@ def _benchmark_main():
 def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path, capsys):
     from qomni.blind_suite import write_results
     main = _benchmark_main()
-    run = {"master_seed": 2027, "reference": "twin", "campaigns": "quick", "singles": 1, "effects": None}
+    run = {"master_seed": 2027, "reference": "twin", "campaigns": "quick", "singles": 1, "pairs": 10,
+           "triples": 3, "effects": None}
     write_results([], tmp_path / "blind_suite.json", run)
     # without options the recorded suite is rescored: its campaign length and draws, not the defaults
     assert main(["--work", str(tmp_path), "--recorded-only"]) == 0
     assert "of master seed 2027" in capsys.readouterr().out
     assert read_run(tmp_path / "blind_suite.json") == run
-    for other in (["--campaigns", "full"], ["--singles", "5"], ["--effects", "payload"], ["--master-seed", "3"]):
+    for other in (["--campaigns", "full"], ["--singles", "5"], ["--pairs", "4"], ["--triples", "1"],
+                  ["--effects", "payload"], ["--master-seed", "3"]):
         assert main(["--work", str(tmp_path), "--recorded-only", *other]) == 2
         assert "use another --work" in capsys.readouterr().out
         assert read_run(tmp_path / "blind_suite.json") == run
@@ -220,3 +222,16 @@ def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path,
     assert main(["--work", str(tmp_path), "--recorded-only", "--quick", "--reference", "ideal"]) == 0
     assert read_run(tmp_path / "blind_suite_ideal.json") == {**run, "reference": "ideal"}
     assert read_run(tmp_path / "blind_suite.json") == run
+
+
+def test_a_results_file_without_its_combination_counts_was_drawn_with_the_defaults(tmp_path, capsys):
+    from qomni.blind_suite import write_results
+    main = _benchmark_main()
+    older = {"master_seed": 2027, "reference": "twin", "campaigns": "quick", "singles": 1, "effects": None}
+    write_results([], tmp_path / "blind_suite.json", older)
+    assert main(["--work", str(tmp_path), "--recorded-only", "--pairs", "11"]) == 2
+    assert "use another --work" in capsys.readouterr().out
+    assert main(["--work", str(tmp_path), "--recorded-only", "--pairs", "10", "--triples", "3"]) == 0
+    assert read_run(tmp_path / "blind_suite.json") == {**older, "pairs": 10, "triples": 3}
+    assert main(["--work", str(tmp_path), "--recorded-only", "--pairs", "11"]) == 2
+    assert "use another --work" in capsys.readouterr().out
