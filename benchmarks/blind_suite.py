@@ -26,6 +26,7 @@ Ray is not offered: its head binds every interface, loopback or not.
 from __future__ import annotations
 
 import argparse
+import inspect
 import secrets
 import sys
 import time
@@ -199,10 +200,13 @@ def main(argv=None) -> int:
     # campaign length, draw count or entry list would score other cases than those recorded there.
     singles = args.singles or recorded.get("singles") or (1 if args.quick else 5)
     campaigns = args.campaigns or ("quick" if args.quick else recorded.get("campaigns", "full"))
-    pairs = args.pairs if args.pairs is not None else recorded.get("pairs", 10)
-    triples = args.triples if args.triples is not None else recorded.get("triples", 3)
+    # a results file from before --pairs/--triples holds a suite drawn with draw_cases' defaults
+    counts = {**{k: inspect.signature(draw_cases).parameters[k].default for k in ("pairs", "triples")},
+              **recorded}
+    pairs = args.pairs if args.pairs is not None else counts["pairs"]
+    triples = args.triples if args.triples is not None else counts["triples"]
     effects = args.effects if args.effects is not None else recorded.get("effects")
-    held = {"pairs": 10, "triples": 3, **recorded} if recorded else {}   # a file from before the options
+    held = counts if recorded else {}
     for key, value in (("campaigns", campaigns), ("singles", singles), ("pairs", pairs), ("triples", triples),
                        ("effects", effects),
                        ("reference", args.reference)):

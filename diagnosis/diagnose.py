@@ -231,18 +231,16 @@ def _first_effect(candidates: list[fitting.Candidate]) -> fitting.Candidate | No
     named at p = 1.3·10⁻⁴ removing shares 0.19 [−0.06, 0.47], all from one steering step (sd 0.14); the
     159 first effects named rightly in five recorded full-campaign draws (130 against the twin, 29 against
     the ideal reference) had intervals above 0 (docs/results.md)."""
-    first = None
     for c in candidates:
         if not c.significant:
             continue
         if _shares_above_zero(c.evaluation):
-            first = c
-            break
+            return c
         lo, hi = c.evaluation.removed_share_ci or (float("nan"), float("nan"))
         c.notes.append(f"significant, but the shares of held-out residual it removes over every channel, "
                        f"{c.evaluation.removed_share:.2f} [{lo:.2f}, {hi:.2f}], are not above 0: not named "
                        f"first")
-    return first
+    return None
 
 
 def _removes_enough(ev: evaluation.Evaluation, floor: dict | None) -> bool:
