@@ -2,6 +2,8 @@
 which drag sideways and roll with the toe (the odometry reads that as chassis motion)."""
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from qomni.conventions import EPSILON as EPS_SIGN, FRONT_SIGN, GRAVITY
@@ -140,11 +142,26 @@ def _compliance_odometry(ch: ChannelData) -> np.ndarray:
     return ch.rows((true - measured) @ p)
 
 
-def _compliance_columns(ch: ChannelData, _):
-    """Columns (1/k, s_rot/k, c_odo) of the torque channels: the scrub drag of driving straight, of the
-    lane change and of the arcs carries 1/k; the rotation's scrub has its own coefficient; the odometry's
-    error from the toe rolling (steps with held steering) carries c_odo, 1 for a toe that explains the
-    rolling (:data:`STEERING_COMPLIANCE`).
+def _raw_columns(ch: ChannelData) -> np.ndarray:
+    """(n, 2) scrub drag per unit 1/k and odometry error of a torque channel, computed once per channel
+    object (the profile asks for them at every s_rot of :data:`S_ROT_GRID`)."""
+    key = id(ch)
+    held = _RAW.get(key)
+    if held is not None and held[0]() is ch:
+        return held[1]
+    raw = np.hstack([_compliance_scrub(ch), _compliance_odometry(ch)[:, None]])
+    _RAW[key] = (weakref.ref(ch, lambda _, key=key: _RAW.pop(key, None)), raw)
+    return raw
+
+
+_RAW: dict[int, tuple[weakref.ref, np.ndarray]] = {}
+
+
+def _compliance_columns(ch: ChannelData, s_rot):
+    """Columns (1/k, c_odo) of the torque channels at the profiled s_rot: the scrub drag of driving
+    straight, of the lane change and of the arcs carries 1/k, the rotation's carries s_rot/k; the
+    odometry's error from the toe rolling (steps with held steering) carries c_odo, 1 for a toe that
+    explains the rolling (:data:`STEERING_COMPLIANCE`).
 
     The steering steps' kinematic channels get no column: there each unit is driven by its own wheel and
     the linkage deflects by 0.1–0.5 mrad, which the linkage torque T/k does not predict (R² 0.01–0.03
@@ -153,29 +170,34 @@ def _compliance_columns(ch: ChannelData, _):
     resistance beside the compliance with it and none without."""
     if ch.kind != "torque":
         return None
-    column = _compliance_scrub(ch)
-    odometry_error = _compliance_odometry(ch)[:, None]
-    zero = np.zeros_like(column)
-    scrub = [zero, column] if ch.context.step in ROTATION_STEPS else [column, zero]
-    return np.hstack([*scrub, odometry_error])
+    raw = _raw_columns(ch)
+    share = float(s_rot) if ch.context.step in ROTATION_STEPS else 1.0
+    return np.column_stack([share * raw[:, 0], raw[:, 1]])
 
 
 #: 1e-4 rad/(N m) (a linkage of 10 kN m/rad): the campaign's typical tyre forces (≈ 250 N, a·F ≈ 20 N m
 #: on the linkage) then toe a rear wheel by < 2 mrad, within an ordinary wheel-alignment tolerance (±0.1°).
-#: 1/k: the straight, lane-change and arcs' drag; s_rot/k, 0 ≤ s_rot ≤ S_ROT_MAX:
-#: the rotation's share of full sliding. More than full sliding is no scrub of this linkage; the bound
-#: leaves room for the two deflection models' errors (fitted s_rot: 0.93–1.01 at 800 N m/rad on full
-#: campaigns), not for the 4× 1/k of the drives fighting sticking steering joints.
+#: s_rot, the rotation's share of full sliding, is profiled over 0 … S_ROT_MAX: one linkage has one
+#: stiffness, so the rotation's drag and the other steps' share 1/k, and where they disagree beyond the
+#: deflection models' errors the profile's admissible optimum takes the bound (the constrained estimate)
+#: instead of discarding the effect. The steps' drags disagree when another effect is collinear with one
+#: of them: an incline loads the straight drive's scrub asymmetrically (uphill torque, more toe), and
+#: beside a 0.034 rad incline the free fit took the straight steps' 1/k to 0.0014 rad/(N m) where the
+#: rotation's stayed at the compliance-only case's 0.0032 (truth 0.0025, 396 N m/rad). Fitted s_rot without
+#: another effect: 0.93–1.01 at 800 N m/rad on full campaigns; the bound leaves room for the two deflection
+#: models' errors, not for the 4× 1/k of the drives fighting sticking steering joints.
 S_ROT_MAX = 1.5
+S_ROT_GRID = tuple(float(v) for v in np.linspace(0.0, S_ROT_MAX, 7))
 #: c_odo, 0 ≤ c_odo ≤ ODOMETRY_MAX: the odometry error's coefficient, 1 when the measured toe rolling is
 #: the deflection's (fitted 0.9–1.2 in straight driving and the arcs at 400 N m/rad, against a truth of
 #: 1); the bound leaves the same room for the estimate's error as S_ROT_MAX.
 ODOMETRY_MAX = 1.5
 STEERING_COMPLIANCE = Hypothesis(
-    "steering_compliance", "", ("compliance", "compliance_rotation", "compliance_odometry"), _compliance_columns,
+    "steering_compliance", "", ("compliance", "compliance_odometry"), _compliance_columns, S_ROT_GRID,
     magnitude=_linear_magnitude(0, "rad/(N m)", "front/rear coupling compliance 1/k "
                                 f"(scrub taken at μ = {SCRUB_FRICTION})"),
-    physical=lambda t: t[0] > 0 and 0 <= t[1] <= S_ROT_MAX * t[0] and 0 <= t[2] <= ODOMETRY_MAX, relevant=1e-4)
+    physical=lambda t: t[0] > 0 and 0 <= t[1] <= ODOMETRY_MAX, nonlinear_unit="s_rot (rotation's share of full sliding)",
+    relevant=1e-4)
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (STEERING_COMPLIANCE,)
