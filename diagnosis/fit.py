@@ -34,7 +34,7 @@ from qomni.conventions import EPSILON, P1_NAMES
 from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
-from .hypotheses.base import Hypothesis, Magnitude, _ci, plausible
+from .hypotheses.base import Hypothesis, Magnitude, interval_95, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate, predicted_residual
 from .problem import Fit, Problem, cached_columns, swapped
 
@@ -300,7 +300,7 @@ class Candidate:
         theta = np.asarray(self.fit.theta, dtype=float)
         cov = np.atleast_2d(np.asarray(self.fit.theta_cov, dtype=float))
         tail = range(len(theta) - len(names), len(theta))
-        return {n: [float(x) for x in _ci(theta[i], math.sqrt(max(cov[i, i], 0.0)))] for n, i in zip(names, tail)}
+        return {n: [float(x) for x in interval_95(theta[i], math.sqrt(max(cov[i, i], 0.0)))] for n, i in zip(names, tail)}
 
 
 def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: IdentificationResult,

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from .hypotheses.base import Z_95, Magnitude, _ci
+from .hypotheses.base import Z_95, Magnitude, interval_95
 from .hypotheses.torque_report_lag import SHORTEST_CYCLES
 
 #: z of the set-point lag (and of the delay derived from it) for naming: p = 10⁻³ two-sided.
@@ -49,7 +49,7 @@ def _sd(magnitude: Magnitude) -> float:
 def _measured(cand, value: float, sd: float, note: str, named_here: bool = True):
     """``cand`` with the measured magnitude and a note; ``named_here``: named by the measurement (its fit
     stays out of the model), else an effect the ground's fit named, re-sized."""
-    return replace(cand, magnitude=replace(cand.magnitude, value=value, ci=_ci(value, sd)),
+    return replace(cand, magnitude=replace(cand.magnitude, value=value, ci=interval_95(value, sd)),
                    significant=True, measured="set-point" if named_here else cand.measured,
                    notes=[*cand.notes, note])
 

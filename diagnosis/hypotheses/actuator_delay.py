@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, _ci, _input_torque, _project, _torque_only
+from .base import Hypothesis, Magnitude, _input_torque, _project, _torque_only, interval_95
 
 
 DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
@@ -33,7 +33,7 @@ def shift_magnitude(quantity: str):
     def magnitude(theta, cov, cycles, sheet):
         T = cycles * sheet.drive.cycle_time
         g, s = float(theta[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
-        return Magnitude(g * T, _ci(g, s, T), "s", quantity)
+        return Magnitude(g * T, interval_95(g, s, T), "s", quantity)
     return magnitude
 
 

@@ -147,14 +147,16 @@ def _tyre_torque(ctx) -> np.ndarray:
 Z_95 = 1.96
 
 
-def _ci(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
+def interval_95(value: float, std: float, scale: float = 1.0) -> tuple[float, float]:
+    """The 95 % interval scale·(value ± Z_95·std) of a normal estimate, every magnitude's and coefficient's
+    interval in ``gap.json``; value and std in the coefficient's unit, scale to the reported one."""
     return (scale * (value - Z_95 * std), scale * (value + Z_95 * std))
 
 
 def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):
     def magnitude(theta, cov, nonlinear, sheet):
         v, s = float(theta[index]), float(math.sqrt(max(cov[index, index], 0.0)))
-        return Magnitude(scale * v, _ci(v, s, scale), unit, quantity)
+        return Magnitude(scale * v, interval_95(v, s, scale), unit, quantity)
     return magnitude
 
 

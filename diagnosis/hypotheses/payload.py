@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, _ci, _linear_magnitude, _project, _torque_only
+from .base import Hypothesis, Magnitude, _linear_magnitude, _project, _torque_only, interval_95
 
 
 @_torque_only
@@ -41,7 +41,7 @@ def _first_moment(theta, cov, nonlinear, sheet) -> Magnitude:
     size = float(np.hypot(*s))
     direction = s / size if size > 0 else np.array([1.0, 0.0])
     sd = math.sqrt(max(float(direction @ np.asarray(cov)[:2, :2] @ direction), 0.0))
-    low, high = _ci(size, sd)
+    low, high = interval_95(size, sd)
     return Magnitude(size, (max(low, 0.0), high), "kg m", "first moment of the mass off the chassis centre")
 
 
