@@ -128,9 +128,10 @@ def rolling_constraints(st: StepSignals, sheet: DataSheet) -> RollingConstraints
                               u[:, 3:], st.cycle_time)
 
 
-@dataclass
+@dataclass(eq=False)
 class ChannelData:
-    """One residual channel.
+    """One residual channel. Compared and hashed by identity: its columns are cached per channel object
+    (:func:`.problem.cached_columns`, a hypothesis' own per-channel memo).
 
     Attributes:
         name: ``"<step>/<coordinate>"`` (torque), ``"<step>/kinematic_<wheel>"`` or

@@ -145,16 +145,13 @@ def _compliance_odometry(ch: ChannelData) -> np.ndarray:
 def _raw_columns(ch: ChannelData) -> np.ndarray:
     """(n, 2) scrub drag per unit 1/k and odometry error of a torque channel, computed once per channel
     object (the profile asks for them at every s_rot of :data:`S_ROT_GRID`)."""
-    key = id(ch)
-    held = _RAW.get(key)
-    if held is not None and held[0]() is ch:
-        return held[1]
-    raw = np.hstack([_compliance_scrub(ch), _compliance_odometry(ch)[:, None]])
-    _RAW[key] = (weakref.ref(ch, lambda _, key=key: _RAW.pop(key, None)), raw)
+    raw = _RAW.get(ch)
+    if raw is None:
+        raw = _RAW[ch] = np.hstack([_compliance_scrub(ch), _compliance_odometry(ch)[:, None]])
     return raw
 
 
-_RAW: dict[int, tuple[weakref.ref, np.ndarray]] = {}
+_RAW: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _compliance_columns(ch: ChannelData, s_rot):
