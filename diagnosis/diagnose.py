@@ -457,9 +457,8 @@ def _forward_selection(fp, hp, model, lag, sheet, accepted_fits, accepted, cache
     """Add further effects to ``accepted`` and ``accepted_fits`` (in place), one per round of
     :func:`_accept_more`, until a round names none. There is no limit on their number: each round leaves
     out the hypotheses already named, so selection ends with the library at the latest, and a further
-    effect's gate (its round's Bonferroni level, presence, held-out confirmation) is what stops it. On the
-    recorded full-campaign cases where a limit of three had cut selection off, the round after the third
-    effect named one more in 1 of 9 (docs/diagnosis.md, Forward selection)."""
+    effect's gate (its round's Bonferroni level, presence, held-out confirmation) is what stops it
+    (measured beyond three effects: docs/diagnosis.md, Forward selection)."""
     while True:
         more = _accept_more(fp, hp, model, lag, sheet, accepted_fits, accepted, cache, levels, hypotheses,
                             floor, rows, selection)
