@@ -89,6 +89,20 @@ def test_the_gap_shrink_counts_only_the_residual_beyond_the_cases_own_twin():
     assert e["min_gap_shrink"] == pytest.approx(0.5) and e["median_gap_shrink"] == pytest.approx(1.0)
 
 
+def test_a_channel_paired_with_the_twin_is_not_floored_by_the_twin_again():
+    """A channel diagnosed beyond the twin's residual at the same instants already holds only the gap: its
+    gap shrink is the whole-residual shrink, not the shrink beyond the twin's own RMS a second time."""
+    t = {"shrink": 1 - np.sqrt(13.0) / 5.0, "channel": "arc_right/x_ch", "rms_before": 5.0,
+         "rms_after": np.sqrt(13.0), "reference_rms": 3.0}
+    def case(paired):
+        return CaseResult(Case("rolling_resistance_0_s1", {}, ["rolling_resistance"], 1, "drawn", "rolling_resistance"),
+                          accepted=["rolling_resistance"], accepted_variants=[""],
+                          true_shrink={"rolling_resistance": {**t, "paired": paired}})
+    assert score([case(False)])["per_effect"]["rolling_resistance"]["median_gap_shrink"] == pytest.approx(0.5)
+    e = score([case(True)])["per_effect"]["rolling_resistance"]
+    assert e["median_gap_shrink"] == pytest.approx(e["median_holdout_shrink"]) == pytest.approx(1 - np.sqrt(13.0) / 5.0)
+
+
 def test_traction_limited_rows_are_widened_by_the_margin():
     sheet = DataSheet.load()
     u = np.zeros((500, 4))

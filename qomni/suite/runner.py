@@ -121,12 +121,15 @@ def _fill(result: CaseResult, d) -> None:
             ev = c.from_model
             ch = next((s for s in ev.channels if s.name == ev.affected), None)
             twin = (d.reference_holdout_rms.get("model") or {}).get(ev.affected)
+            # a paired channel's residual is already the data's beyond the twin's at the same instants
+            paired = ev.affected in d.paired_channels
             result.true_shrink[name] = {"shrink": ev.shrink_affected,
                                         "beyond_base_fit": c.shrink.shrink_affected,
                                         "beyond_reference": c.evaluation.shrink_affected,
                                         "rms_before": ch.rms_before if ch else None,
                                         "rms_after": ch.rms_after if ch else None,
                                         "reference_rms": twin,
+                                        "paired": paired,
                                         "ci": list(ev.shrink_affected_ci),
                                         "channel": ev.affected,
                                         "magnitude": c.magnitude.value, "unit": c.magnitude.unit}

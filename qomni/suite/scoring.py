@@ -93,7 +93,10 @@ def score(results: list[CaseResult]) -> dict:
     fit (``*_beyond_base_fit_shrink``: base parameters moved within their prior first); of the gap, the
     residual beyond what the model leaves on the case's own reference run in the same channel (its twin's,
     or the ideal vehicle's: ``*_gap_shrink``, :func:`excess_shrink` with that run's held-out RMS as the
-    floor, where the case records it and its residual is above it); and from the
+    floor, where the case records it and its residual is above it; in a channel paired with the twin
+    sample by sample (``paired``, :mod:`qomni.diagnosis.paired`) the residual already is the data's beyond
+    the twin's, so its gap shrink is the whole-residual shrink: subtracting the twin's RMS again would
+    count the twin's floor twice); and from the
     reference run's level of the hypothesis (``median_beyond_reference_shrink``, the significance
     gate's); and where in the effect's realistic range its named and missed cases lie
     (``named_range_positions``, ``missed_range_positions``: 0 the weak end, 1 the strong end, sorted),
@@ -121,7 +124,9 @@ def score(results: list[CaseResult]) -> dict:
                 x = excess_shrink(t["rms_before"], t["rms_after"], floor[t["channel"]])
                 if x is not None:
                     e["excess"].append(x)
-            if t.get("reference_rms") is not None and t.get("rms_before") is not None:
+            if t.get("paired"):
+                e["gap"].append(t["shrink"])
+            elif t.get("reference_rms") is not None and t.get("rms_before") is not None:
                 x = excess_shrink(t["rms_before"], t["rms_after"], t["reference_rms"])
                 if x is not None:
                     e["gap"].append(x)
