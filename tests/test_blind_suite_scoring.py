@@ -67,37 +67,37 @@ def test_shrink_beyond_the_ideal_floor_counts_only_the_effects_own_residual():
 
 
 
+def _rolling_case(before, after, twin, **extra):
+    """A rolling-resistance case named rightly, its held-out RMS before/after in its affected channel and
+    the twin's RMS there (``extra``: further ``true_shrink`` keys, e.g. ``paired``)."""
+    return CaseResult(Case("rolling_resistance_0_s1", {}, ["rolling_resistance"], 1, "drawn", "rolling_resistance"),
+                      accepted=["rolling_resistance"], accepted_variants=[""],
+                      true_shrink={"rolling_resistance": {"shrink": 1 - after / before, "channel": "rotation/gamma_ch",
+                                                          "rms_before": before, "rms_after": after,
+                                                          "reference_rms": twin, **extra}})
+
+
 def test_the_gap_shrink_counts_only_the_residual_beyond_the_cases_own_twin():
     """The gap is what the data leave beyond what the model leaves on the case's own reference run (its
     twin) in the same channel: removing half of the gap's RMS is 50 % there, whatever the twin's floor."""
-    def case(before, after, twin):
-        return CaseResult(Case("rolling_resistance_0_s1", {}, ["rolling_resistance"], 1, "drawn", "rolling_resistance"),
-                          accepted=["rolling_resistance"], accepted_variants=[""],
-                          true_shrink={"rolling_resistance": {"shrink": 1 - after / before, "channel": "rotation/gamma_ch",
-                                                              "rms_before": before, "rms_after": after,
-                                                              "reference_rms": twin}})
     # gap RMS 4 on a twin floor of 3: before 5; half the gap's RMS removed leaves √(4 + 9)
-    half = case(5.0, np.sqrt(13.0), 3.0)
+    half = _rolling_case(5.0, np.sqrt(13.0), 3.0)
     e = score([half])["per_effect"]["rolling_resistance"]
     assert e["median_gap_shrink"] == pytest.approx(0.5)
     assert e["median_holdout_shrink"] == pytest.approx(1 - np.sqrt(13.0) / 5.0)
     # a channel not above its twin has no gap to shrink; a case without the twin's RMS is not counted
-    below = case(2.9, 2.5, 3.0)
-    older = case(5.0, 3.0, None)
+    below = _rolling_case(2.9, 2.5, 3.0)
+    older = _rolling_case(5.0, 3.0, None)
     assert score([below, older])["per_effect"]["rolling_resistance"]["median_gap_shrink"] is None
-    e = score([half, below, older, case(5.0, 3.0, 3.0)])["per_effect"]["rolling_resistance"]
+    e = score([half, below, older, _rolling_case(5.0, 3.0, 3.0)])["per_effect"]["rolling_resistance"]
     assert e["min_gap_shrink"] == pytest.approx(0.5) and e["median_gap_shrink"] == pytest.approx(1.0)
 
 
 def test_a_channel_paired_with_the_twin_is_not_floored_by_the_twin_again():
     """A channel diagnosed beyond the twin's residual at the same instants already holds only the gap: its
     gap shrink is the whole-residual shrink, not the shrink beyond the twin's own RMS a second time."""
-    t = {"shrink": 1 - np.sqrt(13.0) / 5.0, "channel": "arc_right/x_ch", "rms_before": 5.0,
-         "rms_after": np.sqrt(13.0), "reference_rms": 3.0}
     def case(paired):
-        return CaseResult(Case("rolling_resistance_0_s1", {}, ["rolling_resistance"], 1, "drawn", "rolling_resistance"),
-                          accepted=["rolling_resistance"], accepted_variants=[""],
-                          true_shrink={"rolling_resistance": {**t, "paired": paired}})
+        return _rolling_case(5.0, np.sqrt(13.0), 3.0, paired=paired)
     assert score([case(False)])["per_effect"]["rolling_resistance"]["median_gap_shrink"] == pytest.approx(0.5)
     e = score([case(True)])["per_effect"]["rolling_resistance"]
     assert e["median_gap_shrink"] == pytest.approx(e["median_holdout_shrink"]) == pytest.approx(1 - np.sqrt(13.0) / 5.0)
