@@ -27,10 +27,16 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import os
 import secrets
 import sys
 import time
 from pathlib import Path
+
+# One case per worker process: BLAS threads on top of the workers oversubscribe the cores. Set before
+# numpy loads, so that the forked local workers and a local Dask cluster's inherit it.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 

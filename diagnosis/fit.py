@@ -328,7 +328,7 @@ def fit_hypothesis(fit_problem: Problem, hold_problem: Problem, model: Identific
     if profiled is None:
         return None
     best, test_base = profiled
-    p_value = f_test(test_base, best, extra_dof=0 if h.grid == (None,) else 1, tested=held)
+    p_value = f_test(test_base, best, extra_dof=h.profiled, tested=held)
     other = _other_fold(fit_problem, hold_problem, model, h, base, lag, cache, reference, held)
     evaluation = evaluate(hold_problem, test_base, best, cache,
                           also=() if other is None else ((other.hold, other.test_base, other.best),))

@@ -73,6 +73,14 @@ class Hypothesis:
     def label(self) -> str:
         return f"{self.name} ({self.variant})" if self.variant else self.name
 
+    @property
+    def profiled(self) -> int:
+        """How many non-linear parameters the grid profiles: 0 without one, else the length of a grid
+        point (a tuple per point where it profiles several, e.g. the backlash's crossing time and width)."""
+        if self.grid == (None,):
+            return 0
+        return len(self.grid[0]) if isinstance(self.grid[0], tuple) else 1
+
 
 @dataclass(frozen=True)
 class RuleRows:

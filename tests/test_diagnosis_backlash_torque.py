@@ -1,0 +1,77 @@
+"""The backlash hypothesis in the torque channels: the paper's model evaluated on the motor encoders' lead
+over the wheels (diagnosis/hypotheses/backlash.py). Quick campaigns on a vehicle with a 15 mrad gap and on
+the ideal vehicle (same seed), each under its own identified model: in the chassis steps the column alone
+reads the gap to within 30 % and takes more than 30 % of the residual the gap leaves (its best
+transition; without the crossing time it took 4 and 12 %), and on the ideal vehicle it reads nothing and
+takes nothing at any transition."""
+import numpy as np
+import pytest
+
+from qomni.diagnosis.channels import channels
+from qomni.diagnosis.hypotheses.backlash import BACKLASH, TRANSITION
+from qomni.ident.rundir import load_identification, load_repaired_run
+from qomni.suite.runner import run_campaign
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+GAP = 0.015  # rad, wheel side
+CHASSIS_STEPS = ("straight", "rotation")
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    work = tmp_path_factory.mktemp("backlash_torque")
+    out = {}
+    for name, effects in (("backlash", {"backlash": {"gap": GAP}}), ("ideal", {})):
+        run_campaign(work / name, effects, 41, quick=True)
+        model = load_identification(work / name / "identification.json")
+        signals, sheet, _, _ = load_repaired_run(work / name)
+        out[name] = [c for c in channels(signals, sheet, model, steps=("steer_left",) + CHASSIS_STEPS)
+                     if c.kind == "torque"]
+    return out
+
+
+def _fit(ch, transition):
+    """(gap [rad], share of the residual's RMS it removes) of the column fitted alone with the base
+    columns free, on the channel's fitted rows."""
+    rows = ch.fitted
+    r = ch.residual[rows]
+    column = BACKLASH.columns(ch, transition)[rows, 0]
+    X = np.column_stack([ch.base[rows], column])
+    theta, *_ = np.linalg.lstsq(X, r, rcond=None)
+    base_only = r - ch.base[rows] @ np.linalg.lstsq(ch.base[rows], r, rcond=None)[0]
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))
+    return float(theta[-1]), 1 - rms(r - X @ theta) / rms(base_only)
+
+
+def _chassis(channels):
+    return [c for c in channels if c.step in CHASSIS_STEPS]
+
+
+def test_the_torque_column_reads_the_gap_where_the_gear_crosses_it(runs):
+    assert {c.step for c in _chassis(runs["backlash"])} == set(CHASSIS_STEPS)
+    for ch in _chassis(runs["backlash"]):
+        fits = [_fit(ch, transition) for transition in TRANSITION]
+        gap, removed = max(fits, key=lambda f: f[1])      # the profile: the transition that fits best
+        assert 0.7 * GAP < gap < 1.3 * GAP, (ch.name, fits)
+        assert removed > 0.3, (ch.name, fits)
+
+
+def test_the_torque_column_reads_nothing_on_the_ideal_vehicle(runs):
+    for ch in _chassis(runs["ideal"]):
+        for transition in TRANSITION:
+            gap, removed = _fit(ch, transition)
+            assert abs(gap) < 0.1 * GAP and removed < 0.02, (ch.name, transition, gap, removed)
+
+
+def test_the_steering_steps_have_no_torque_column(runs):
+    # the held side hovers inside any transition, the steered side keeps its sign (the module)
+    steering = [c for c in runs["backlash"] if c.step == "steer_left"]
+    assert steering and all(BACKLASH.columns(c, transition) is None for c in steering for transition in TRANSITION)
+
+
+def test_the_f_test_counts_both_profiled_parameters_of_the_backlash():
+    from qomni.diagnosis.hypotheses import LIBRARY
+
+    profiled = {h.name: h.profiled for h in LIBRARY}
+    assert profiled["backlash"] == 2 and profiled["actuator_delay"] == 1 and profiled["payload"] == 0
