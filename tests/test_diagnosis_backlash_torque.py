@@ -67,7 +67,8 @@ def test_the_torque_column_reads_nothing_on_the_ideal_vehicle(runs):
 def test_the_steering_steps_have_no_torque_column(runs):
     # the held side hovers inside any transition, the steered side keeps its sign (the module)
     steering = [c for c in runs["backlash"] if c.step == "steer_left"]
-    assert steering and all(BACKLASH.columns(c, transition) is None for c in steering for transition in TRANSITION)
+    assert steering
+    assert all(BACKLASH.columns(c, transition) is None for c in steering for transition in TRANSITION)
 
 
 def test_the_f_test_counts_both_profiled_parameters_of_the_backlash():

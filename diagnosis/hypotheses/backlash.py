@@ -5,23 +5,24 @@ constraints the kinematic and rolling channels test. In the torque channels it a
 itself: the model's generalized velocities and accelerations are the encoders' (the chassis twist by
 odometry (3) from β̇, the wheels' β̇, β̈), so where the gear crosses its gap the model is evaluated on
 the lead's motion on top of the wheels' and asks for a torque the drives did not apply. The column is
-−H_kᵀY(q, δq̇, δq̈)p̂ with δβ = λ (per unit gap), the chassis' δq̇ its odometry, and the Coulomb terms left
-out (the model's tanh friction is not linear in a velocity step; its viscous and inertial terms are):
-the paper's model (19) evaluated on the lead, linear in the gap.
+−H_kᵀY(q, δq̇, δq̈)p̂ with δβ = λ (per unit gap), the chassis' δq̇ its odometry, and the Coulomb terms
+left out (the model's tanh friction is not linear in a velocity step; its viscous and inertial terms
+are): the paper's model (19) evaluated on the lead, linear in the gap.
 
 When the torque reverses, the rotor crosses the gap before the teeth meet again: the lead turns over
 after the torque's zero crossing, by the crossing time. A rotor of inertia J_r under a torque that grows
 from zero at the rate u̇ crosses g in t_c = (6·J_r·g/(i_G·u̇))^(1/3), tens of milliseconds, growing as
-g^(1/3); J_r and the rate are the drive's, not the data sheet's, so the torque channels' lead is
-λ_i(t) = ½·gap·tanh(u_i(t − t_c)/u_t), with t_c and the turn-over's width u_t profiled over
-:data:`TRANSITION` (2 ms SYNC cycles × N m motor side). On full campaigns with 2.1–18 mrad gaps the profile
-took 10–20 cycles, the larger the gap the longer, and the column then removed 50–80 % of the gap's
-torque residual in the chassis steps (a third without the shift). The steering steps (mode 1) get no
-torque column: there the steered side's drives roll their wheels against friction at 0.5–0.7 N m (motor
-side) and keep its sign between the steps' reversals, while the held side's hold their wheels at
-0.01–0.08 N m with the sign changing hundreds of times a second, inside any transition, where the lead
-is not a function of the torque's sign (measured on a full campaign with a 3 mrad gap); those steps'
-kinematic channels see the lead.
+g^(1/3); J_r and the rate are the drive's, not the data sheet's, so the torque channels' lead is λ_i(t) =
+½·gap·tanh(u_i(t − t_c)/u_t), with t_c and the turn-over's width u_t profiled over :data:`TRANSITION` (2
+ms SYNC cycles × N m motor side). On full campaigns with 2.1–18 mrad gaps the profile took 10–20 cycles,
+the larger the gap the longer, and the column then removed 47–81 % of the RMS of the gap's torque
+residual in the straight run, the rotation and the arcs (17–52 % without the shift).
+
+The steering steps (mode 1) get no torque column: there the steered side's drives roll their wheels
+against friction at 0.5–0.7 N m (motor side) and keep its sign between the steps' reversals, while the
+held side's hold their wheels at 0.01–0.08 N m with the sign changing hundreds of times a second, inside
+any transition, where the lead is not a function of the torque's sign (measured on a full campaign with a
+3 mrad gap); those steps' kinematic channels see the lead.
 """
 from __future__ import annotations
 
@@ -36,8 +37,8 @@ from .base import Hypothesis, _linear_magnitude, _rolling
 
 BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
 #: The torque channels' profile grid: (crossing time t_c in SYNC cycles, turn-over width u_t in N m motor
-#: side). t_c from 0 to 30 cycles (60 ms) spans g^(1/3) from the smallest relevant gap (0.3 mrad) to the
-#: realistic range's end.
+#: side). t_c grows as g^(1/3): the 10 cycles (20 ms) measured at 2 mrad make 22 at the realistic range's
+#: 20 mrad end and 5 at the smallest relevant gap (0.3 mrad); 0 to 30 cycles spans them with margin.
 TRANSITION = tuple((cycles, width) for cycles in (0, 5, 10, 15, 20, 30) for width in (0.05, 0.1))
 
 
