@@ -15,7 +15,7 @@ from zero at the rate u̇ crosses g in t_c = (6·J_r·g/(i_G·u̇))^(1/3), tens 
 g^(1/3); J_r and the rate are the drive's, not the data sheet's, so the torque channels' lead is λ_i(t) =
 ½·gap·tanh(u_i(t − t_c)/u_t), with t_c and the turn-over's width u_t profiled over :data:`TRANSITION` (2
 ms SYNC cycles × N m motor side). On full campaigns with 2.1–18 mrad gaps the profile took 10–20 cycles,
-the larger the gap the longer, and the column then removed 47–81 % of the RMS of the gap's torque
+the larger the gap the longer, and the column then removed 49–81 % of the RMS of the gap's torque
 residual in the straight run, the rotation and the arcs (17–52 % without the shift).
 
 The steering steps (mode 1) get no torque column: there the steered side's drives roll their wheels
