@@ -31,7 +31,8 @@ wheel_radius               (kinematic) predicted rolling angle; (torque)    r_no
                            Θ̂_{C_ch} C_ch): odometry's scale
 backlash                   (kinematic, rolling) ½·sign(u_i); (torque,       gap [rad, wheel side]
                            chassis steps) −H_kᵀY(q, δq̇, δq̈)p̂ of the lead
-                           δβ_i = ½·tanh(u_i/u_t), u_t profiled
+                           δβ_i = ½·tanh(u_i(t − t_c)/u_t), t_c, u_t
+                           profiled
 steering_compliance        (torque) scrub drag μN·|δ| of the toed rear    1/stiffness [rad/(N m)]
                            wheels, δ = T/k of the linkage torque T
                            through the held joints' stiction play d_c/2;

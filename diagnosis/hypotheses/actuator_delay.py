@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, _input_torque, _project, _torque_only, interval_95
+from .base import Hypothesis, Magnitude, _delayed, _input_torque, _project, _torque_only, interval_95
 
 
 DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
@@ -21,7 +21,7 @@ def shift_columns(direction: int):
     def columns(ch: ChannelData, cycles):
         Bu = _input_torque(ch)
         if direction > 0:
-            shifted = np.vstack([np.repeat(Bu[:1], cycles, axis=0), Bu[:-cycles]])
+            shifted = _delayed(Bu, cycles)
         else:
             shifted = np.vstack([Bu[cycles:], np.repeat(Bu[-1:], cycles, axis=0)])
         return _project(ch, Bu - shifted)[:, None]

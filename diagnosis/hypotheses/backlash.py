@@ -32,7 +32,7 @@ from qomni.ident import dynamics, filtering, odometry
 from qomni.ident.regressor_rows import COULOMB_COLUMNS, model_alpha
 
 from ..channels import ChannelData
-from .base import Hypothesis, _linear_magnitude, _rolling
+from .base import Hypothesis, _delayed, _linear_magnitude, _rolling
 
 
 BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
@@ -50,9 +50,7 @@ def _torque_column(ch: ChannelData, transition: tuple[int, float]) -> np.ndarray
     if ctx.k == 1:
         return None
     cycles, width = transition
-    u = st.motor_torque
-    if cycles:
-        u = np.vstack([np.repeat(u[:1], cycles, axis=0), u[:-cycles]])
+    u = _delayed(st.motor_torque, cycles) if cycles else st.motor_torque
     lead = filtering.zero_phase_lowpass(0.5 * np.tanh(u / width), st.cycle_time, st.omega_g)
     lead_d = np.gradient(lead, st.cycle_time, axis=0)
     lead_dd = np.gradient(lead_d, st.cycle_time, axis=0)

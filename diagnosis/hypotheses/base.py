@@ -34,7 +34,8 @@ class Hypothesis:
         parameters: names of the linear coefficients θ.
         columns: ``(channel, nonlinear) -> (n, len(parameters))`` or None when the hypothesis does not
             act on that channel.
-        grid: values of the profiled non-linear parameter (``(None,)`` if none).
+        grid: values of the profiled non-linear parameter (``(None,)`` if none; a tuple per point where
+            it profiles several, :attr:`profiled`).
         magnitude: ``(θ, cov θ, nonlinear, data sheet) -> Magnitude``.
         physical: ``θ -> bool``: whether the fitted sign is physically possible.
         absorbed_by: base parameters the columns are (nearly) collinear with, by construction.
@@ -166,6 +167,12 @@ def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):
         v, s = float(theta[index]), float(math.sqrt(max(cov[index, index], 0.0)))
         return Magnitude(scale * v, interval_95(v, s, scale), unit, quantity)
     return magnitude
+
+
+def _delayed(x: np.ndarray, rows: int) -> np.ndarray:
+    """``x`` (N, …) delayed by ``rows`` ≥ 1 samples along its first axis, its first row held before the
+    start."""
+    return np.concatenate([np.repeat(x[:1], rows, axis=0), x[:-rows]], axis=0)
 
 
 def _input_torque(ch: ChannelData) -> np.ndarray:

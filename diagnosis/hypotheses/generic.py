@@ -7,7 +7,7 @@ from qomni.conventions import EPSILON as EPS_SIGN, SIDE_INDEX
 
 from ..channels import ChannelData
 from .backlash import BACKLASH_TORQUE_SCALE
-from .base import Hypothesis, Magnitude
+from .base import Hypothesis, Magnitude, _delayed
 
 
 def generic(channel: str) -> Hypothesis:
@@ -22,7 +22,7 @@ def generic(channel: str) -> Hypothesis:
         v, acc = ch.velocity, ch.acceleration
         if ch.kind == "torque":
             y = ch.y
-            lagged = [np.concatenate([np.repeat(y[:1], n), y[:-n]]) - y for n in (5, 15)]
+            lagged = [_delayed(y, n) - y for n in (5, 15)]
             return np.column_stack([v, acc, np.tanh(v / EPS_SIGN), v * np.abs(v), *lagged])
         if ch.kind == "rolling":
             # positions: the integrals of the speed's odd and even powers and the generalized input
