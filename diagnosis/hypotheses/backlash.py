@@ -1,8 +1,9 @@
 """Gear backlash: the motor encoder leads the wheel by half the gap in the direction of the torque.
 
 The lead λ_i = ½·gap·tanh(u_i/u_t) of each drive's motor encoder over its wheel breaks the rolling
-constraints the kinematic and rolling channels test. In the torque channels it acts through the model
-itself: the model's generalized velocities and accelerations are the encoders' (the chassis twist by
+constraints the kinematic and rolling channels test (the steering steps' kinematic channels take it at
+u_t = 0.05 N m without a crossing time; the chassis steps' crossing time is below). In the torque
+channels it acts through the model itself: the model's generalized velocities and accelerations are the encoders' (the chassis twist by
 odometry (3) from β̇, the wheels' β̇, β̈), so where the gear crosses its gap the model is evaluated on
 the lead's motion on top of the wheels' and asks for a torque the drives did not apply. The column is
 −H_kᵀY(q, δq̇, δq̈)p̂ with δβ = λ (per unit gap), the chassis' δq̇ its odometry, and the Coulomb terms
@@ -17,6 +18,13 @@ g^(1/3); J_r and the rate are the drive's, not the data sheet's, so the torque c
 ms SYNC cycles × N m motor side). On full campaigns with 2.1–18 mrad gaps the profile took 10–20 cycles,
 the larger the gap the longer, and the column then removed 49–81 % of the RMS of the gap's torque
 residual in the straight run, the rotation and the arcs (17–52 % without the shift).
+
+The rotation's rolling channels see the same lead, so their column takes the torque channels' λ_i(t) at
+the same transition: one lead per drive, one profile for the step. Taken memoryless (λ_i = ½·gap·tanh(u_i
+/0.05 N m)), it turns over before the motor has crossed the gap and the rolling channels read a 15 mrad
+gap 35 % low on a quick campaign (`tests/test_diagnosis_backlash_torque.py`), and the hypothesis' shared
+gap read 17 recorded full campaigns' 5.8–18 mrad gaps 25 % low to 6 % high (median 19 % low); with the
+torque channels' lead 17 % low to 6 % high (median 4 % low; docs/results.md).
 
 The steering steps (mode 1) get no torque column: there the steered side's drives roll their wheels
 against friction at 0.5–0.7 N m (motor side) and keep its sign between the steps' reversals, while the
@@ -42,6 +50,14 @@ BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floa
 TRANSITION = tuple((cycles, width) for cycles in (0, 5, 10, 15, 20, 30) for width in (0.05, 0.1))
 
 
+def _lead(motor_torque: np.ndarray, transition: tuple[int, float]) -> np.ndarray:
+    """(N, 4) the encoders' lead per unit gap, ½·tanh(u(t − t_c)/u_t), for a ``transition`` (t_c in SYNC
+    cycles, u_t in N m motor side) of :data:`TRANSITION`; ``motor_torque`` (N, 4) N m motor side."""
+    cycles, width = transition
+    u = _delayed(motor_torque, cycles) if cycles else motor_torque
+    return 0.5 * np.tanh(u / width)
+
+
 def _torque_column(ch: ChannelData, transition: tuple[int, float]) -> np.ndarray | None:
     """(n,) −H_kᵀY(q, δq̇, δq̈)p̂ of a torque channel for a unit gap and a ``transition`` (cycles, N m)
     of :data:`TRANSITION` (see the module); None in mode 1."""
@@ -49,9 +65,7 @@ def _torque_column(ch: ChannelData, transition: tuple[int, float]) -> np.ndarray
     st, g = ctx.st, ctx.sheet.geometry
     if ctx.k == 1:
         return None
-    cycles, width = transition
-    u = _delayed(st.motor_torque, cycles) if cycles else st.motor_torque
-    lead = filtering.zero_phase_lowpass(0.5 * np.tanh(u / width), st.cycle_time, st.omega_g)
+    lead = filtering.zero_phase_lowpass(_lead(st.motor_torque, transition), st.cycle_time, st.omega_g)
     lead_d = np.gradient(lead, st.cycle_time, axis=0)
     lead_dd = np.gradient(lead_d, st.cycle_time, axis=0)
     alpha = model_alpha(st, g)
@@ -74,8 +88,8 @@ def _backlash_columns(ch: ChannelData, transition):
     if ch.kind == "kinematic":
         return ch.rows(0.5 * np.tanh(st.motor_torque[:, ch.index] / BACKLASH_TORQUE_SCALE))[:, None]
     # The encoder reads the motor, half the gap ahead of the wheel in the direction of the torque: the
-    # longitudinal rows (−r β̇) see the rate of that lead.
-    lead = 0.5 * np.tanh(st.motor_torque / BACKLASH_TORQUE_SCALE)
+    # longitudinal rows (−r β̇) see the rate of that lead, the torque channels' lead of the same step.
+    lead = _lead(st.motor_torque, transition)
     violation = np.zeros((len(st.time), 8))
     violation[:, 4:] = -ch.context.sheet.geometry.r * np.gradient(lead, st.cycle_time, axis=0)
     return _rolling(ch, violation)[:, None]
