@@ -8,6 +8,7 @@ at their best transition, they read the gap within 20 % (with a lead that turns 
 crossing, 35 % low), and nothing on the ideal vehicle."""
 import numpy as np
 import pytest
+from scipy.linalg import block_diag
 
 from qomni.diagnosis.channels import channels
 from qomni.diagnosis.hypotheses.backlash import BACKLASH, TRANSITION
@@ -84,16 +85,9 @@ def test_the_f_test_counts_both_profiled_parameters_of_the_backlash():
 def _rolling_fit(chans, transition):
     """(gap [rad], residual RMS [m]) of one gap shared by the rolling channels, each with its nuisance
     columns free, on their fitted rows."""
-    blocks = [(c.nuisance[c.fitted], BACKLASH.columns(c, transition)[c.fitted, 0], c.y[c.fitted])
-              for c in chans]
-    n, m = sum(len(b[2]) for b in blocks), sum(b[0].shape[1] for b in blocks)
-    A, y = np.zeros((n, m + 1)), np.zeros(n)
-    i = j = 0
-    for nuisance, column, rows in blocks:
-        A[i:i + len(rows), j:j + nuisance.shape[1]] = nuisance
-        A[i:i + len(rows), -1] = column
-        y[i:i + len(rows)] = rows
-        i, j = i + len(rows), j + nuisance.shape[1]
+    A = np.column_stack([block_diag(*(c.nuisance[c.fitted] for c in chans)),
+                         np.concatenate([BACKLASH.columns(c, transition)[c.fitted, 0] for c in chans])])
+    y = np.concatenate([c.y[c.fitted] for c in chans])
     theta, *_ = np.linalg.lstsq(A, y, rcond=None)
     return float(theta[-1]), float(np.sqrt(np.mean((y - A @ theta) ** 2)))
 

@@ -29,10 +29,10 @@ torque_constant_error      −H_kᵀB e_j u_j for one drive j                  f
 wheel_radius               (kinematic) predicted rolling angle; (torque)    r_nominal/r − 1 [-]
                            −(steering-joint terms) − 2·(Θ̂_{m_ch} m_ch +
                            Θ̂_{C_ch} C_ch): odometry's scale
-backlash                   (kinematic, rolling) ½·sign(u_i); (torque,       gap [rad, wheel side]
-                           chassis steps) −H_kᵀY(q, δq̇, δq̈)p̂ of the lead
-                           δβ_i = ½·tanh(u_i(t − t_c)/u_t), t_c, u_t
-                           profiled
+backlash                   (kinematic) ½·tanh(u_i/0.05 N m); chassis        gap [rad, wheel side]
+                           steps: the lead δβ_i = ½·tanh(u_i(t − t_c)/u_t),
+                           t_c, u_t profiled, its rate (rolling) and
+                           −H_kᵀY(q, δq̇, δq̈)p̂ of it (torque)
 steering_compliance        (torque) scrub drag μN·|δ| of the toed rear    1/stiffness [rad/(N m)]
                            wheels, δ = T/k of the linkage torque T
                            through the held joints' stiction play d_c/2;

@@ -3,9 +3,10 @@
 The lead λ_i = ½·gap·tanh(u_i/u_t) of each drive's motor encoder over its wheel breaks the rolling
 constraints the kinematic and rolling channels test (the steering steps' kinematic channels take it at
 u_t = 0.05 N m without a crossing time; the chassis steps' crossing time is below). In the torque
-channels it acts through the model itself: the model's generalized velocities and accelerations are the encoders' (the chassis twist by
-odometry (3) from β̇, the wheels' β̇, β̈), so where the gear crosses its gap the model is evaluated on
-the lead's motion on top of the wheels' and asks for a torque the drives did not apply. The column is
+channels it acts through the model itself: the model's generalized velocities and accelerations are
+the encoders' (the chassis twist by odometry (3) from β̇, the wheels' β̇, β̈), so where the gear crosses
+its gap the model is evaluated on the lead's motion on top of the wheels' and asks for a torque the
+drives did not apply. The column is
 −H_kᵀY(q, δq̇, δq̈)p̂ with δβ = λ (per unit gap), the chassis' δq̇ its odometry, and the Coulomb terms
 left out (the model's tanh friction is not linear in a velocity step; its viscous and inertial terms
 are): the paper's model (19) evaluated on the lead, linear in the gap.
@@ -54,8 +55,7 @@ def _lead(motor_torque: np.ndarray, transition: tuple[int, float]) -> np.ndarray
     """(N, 4) the encoders' lead per unit gap, ½·tanh(u(t − t_c)/u_t), for a ``transition`` (t_c in SYNC
     cycles, u_t in N m motor side) of :data:`TRANSITION`; ``motor_torque`` (N, 4) N m motor side."""
     cycles, width = transition
-    u = _delayed(motor_torque, cycles) if cycles else motor_torque
-    return 0.5 * np.tanh(u / width)
+    return 0.5 * np.tanh(_delayed(motor_torque, cycles) / width)
 
 
 def _torque_column(ch: ChannelData, transition: tuple[int, float]) -> np.ndarray | None:

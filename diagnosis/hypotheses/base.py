@@ -170,8 +170,10 @@ def _linear_magnitude(index: int, unit: str, quantity: str, scale: float = 1.0):
 
 
 def _delayed(x: np.ndarray, rows: int) -> np.ndarray:
-    """``x`` (N, …) delayed by ``rows`` ≥ 1 samples along its first axis, its first row held before the
+    """``x`` (N, …) delayed by ``rows`` ≥ 0 samples along its first axis, its first row held before the
     start."""
+    if rows == 0:
+        return x
     return np.concatenate([np.repeat(x[:1], rows, axis=0), x[:-rows]], axis=0)
 
 
