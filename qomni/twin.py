@@ -107,7 +107,8 @@ def twin_toml(description: VehicleDescription) -> str:
     lines = ["# A digital twin: the emulator configured with identified parameters (qomni twin).",
              "# [truth] is the identification; [geometry], [drive], [nominal] the data sheet; the bodies are",
              "# the paper's idealisation (run it with the ideal effects set); [body] contact and [noise] are",
-             "# the built-in prototype's.", "", "[vehicle]", f'name = "{sheet.name}"']
+             "# the built-in prototype's (a reference run's [noise]: no torque ripple, a noise-free torque",
+             "# actual; qomni.twin.reference_noise).", "", "[vehicle]", f'name = "{sheet.name}"']
     for name, table in sections.items():
         lines += ["", f"[{name}]", *(f"{key} = {value!r}" for key, value in table.items())]
     text = "\n".join(lines) + "\n"

@@ -207,10 +207,12 @@ def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_whe
 
 @pytest.mark.slow
 def test_a_small_payload_is_named_against_the_runs_own_twin_sample_for_sample(tmp_path):
-    """80 kg at (−0.10, 0.15) m (first moment 14.4 kg m): the same-run model holds its mass and yaw inertia,
-    and what is left (the first moment's forces in the lane change) is a few newtons under the model's own
-    12 N of lane-change residual. The twin ran the data's campaign, so that residual is diagnosed beyond
-    the twin's at the same samples (diagnosis/paired.py), and the payload is named with its first moment."""
+    """80 kg at (−0.10, 0.15) m (first moment (−8, 12) kg m): the same-run model holds its mass and yaw
+    inertia, and what is left (the first moment's forces in the lane change and the arcs) is a few newtons
+    under the model's own 12 N of lane-change residual. The twin ran the data's campaign, so that residual
+    is diagnosed beyond the twin's at the same samples (diagnosis/paired.py), and the payload is named
+    with its lateral first moment m_y_c, which the quick campaign determines (to about ±3 kg m); its
+    longitudinal one it leaves open (an interval of hundreds of kg m, holding the truth)."""
     from qomni.blind_suite import run_campaign
 
     run = tmp_path / "payload"
@@ -218,7 +220,12 @@ def test_a_small_payload_is_named_against_the_runs_own_twin_sample_for_sample(tm
     gap = _diagnose_against_own_twin(run, run / "twin_gap")
     assert "lane_change/x_ch" in gap["paired_channels"]
     assert [a["name"] for a in gap["accepted"]] == ["payload"], gap["verdict"]
-    assert 0.5 * 14.4 < gap["accepted"][0]["magnitude"] < 2 * 14.4
+    payload = gap["accepted"][0]
+    lo, hi = payload["coefficients_ci"]["m_y_c"]
+    assert lo <= 12.0 <= hi and hi - lo < 12.0, payload["coefficients_ci"]
+    lo, hi = payload["coefficients_ci"]["m_x_c"]
+    assert lo <= -8.0 <= hi, payload["coefficients_ci"]
+    assert payload["ci"][0] <= 14.4 <= payload["ci"][1]
 
 
 @pytest.mark.slow
