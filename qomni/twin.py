@@ -84,7 +84,7 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
 def reference_noise(description: VehicleDescription) -> VehicleDescription:
     """The twin as its reference run drives it: no torque ripple and a noise-free torque actual
     (0x6077), the steering sensors' noise as in ``description`` (module docstring; what it changes:
-    docs/results.md, "The twin's reference run without its own torque noise").
+    docs/results.md, "The twin's reference run: its expected behaviour, with noise of its own").
     """
     return replace(description, noise=replace(description.noise, motor_torque_ripple=0.0,
                                               torque_measurement=0.0))
