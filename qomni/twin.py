@@ -21,14 +21,6 @@ What the twin is made of:
   inertia) and ``[noise]``: the built-in prototype's, since neither a data sheet nor an identification
   gives them.
 
-The twin's *reference run* (:func:`twin_reference`) is the twin's expected behaviour, not a second noisy
-sample of it: it runs without torque ripple and with a noise-free torque actual (:func:`reference_noise`),
-and draws its steering sensors' noise from a stream of its own (:func:`reference_seed`). The diagnosis
-subtracts the reference's torque residual from the data's sample for sample (``diagnosis.paired``); a
-ripple and a measurement noise of the twin's own are independent of the vehicle's and only add to that
-difference's variance. The steering sensors' noise stays: the campaign's steering controller acts on
-the quantised angle it dithers, so it shapes the closed loop the reference must share with the vehicle.
-
 Composition root: it imports the emulator and the identification; ``ident``, ``fmu`` and ``diagnosis``
 never do.
 """
@@ -37,8 +29,6 @@ from __future__ import annotations
 import tomllib
 from dataclasses import asdict, replace
 from pathlib import Path
-
-import numpy as np
 
 from qomni.conventions import PARAMETER_NAMES
 from qomni.datasheet import DataSheet
@@ -50,9 +40,6 @@ from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, datasheet_from_me
 
 #: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
 TWIN_REFERENCE = "twin_reference"
-
-#: Entropy mixed into the campaign's seed for the reference run's emulator noise (:func:`reference_seed`).
-REFERENCE_NOISE_STREAM = 0x7A1C
 
 
 class TwinError(ValueError):
@@ -81,23 +68,6 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     return description
 
 
-def reference_noise(description: VehicleDescription) -> VehicleDescription:
-    """The twin as its reference run drives it: no torque ripple and a noise-free torque actual
-    (0x6077), the steering sensors' noise as in ``description`` (module docstring; what it changes:
-    docs/results.md, "The twin's reference run: its expected behaviour, with noise of its own").
-    """
-    return replace(description, noise=replace(description.noise, motor_torque_ripple=0.0,
-                                              torque_measurement=0.0))
-
-
-def reference_seed(seed: int) -> int:
-    """The reference run's emulator noise seed for a campaign of seed ``seed``: a stream of its own
-    (``numpy.random.SeedSequence`` of the seed and :data:`REFERENCE_NOISE_STREAM`), so that an emulated
-    vehicle's sensor noise and its twin's are independent, as a real vehicle's and its twin's are. The
-    campaign itself (excitation, segments) keeps ``seed``."""
-    return int(np.random.SeedSequence([int(seed), REFERENCE_NOISE_STREAM]).generate_state(1)[0])
-
-
 def twin_toml(description: VehicleDescription) -> str:
     """The description as a vehicle TOML file (``emulator/data/prototype.toml``'s format)."""
     sheet = description.datasheet
@@ -107,8 +77,7 @@ def twin_toml(description: VehicleDescription) -> str:
     lines = ["# A digital twin: the emulator configured with identified parameters (qomni twin).",
              "# [truth] is the identification; [geometry], [drive], [nominal] the data sheet; the bodies are",
              "# the paper's idealisation (run it with the ideal effects set); [body] contact and [noise] are",
-             "# the built-in prototype's (a reference run's [noise]: no torque ripple, a noise-free torque",
-             "# actual; qomni.twin.reference_noise).", "", "[vehicle]", f'name = "{sheet.name}"']
+             "# the built-in prototype's.", "", "[vehicle]", f'name = "{sheet.name}"']
     for name, table in sections.items():
         lines += ["", f"[{name}]", *(f"{key} = {value!r}" for key, value in table.items())]
     text = "\n".join(lines) + "\n"
@@ -146,9 +115,7 @@ def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
 def twin_reference(identification: str | Path, data_dir: str | Path, cache: str | Path,
                    datasheet: str | Path | None = None, on_progress=None) -> Path:
     """The twin's campaign with the settings, excitation and seed recorded in ``data_dir/metadata.json``,
-    run in ``cache`` or found there from an earlier diagnosis of the same model and settings; the twin
-    without torque ripple and torque-actual noise (:func:`reference_noise`), its steering sensors' noise
-    drawn from a stream of its own (:func:`reference_seed`).
+    run in ``cache`` or found there from an earlier diagnosis of the same model and settings.
 
     Returns:
         the run directory of the twin's campaign (signals.csv, metadata.json).
@@ -165,11 +132,9 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
-    description = reference_noise(description)
-    noise_seed = reference_seed(settings.seed)
     controller = _controller_of(meta)
     key = {"twin": twin_toml(description), "settings": recorded, "controller": asdict(controller),
-           "parameters": parameters, "noise_seed": noise_seed}
+           "parameters": parameters}
     stamp = cache / TWIN_STAMP
     if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
         done = read_json(cache / METADATA)
@@ -184,7 +149,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     run = Campaign(sheet, cache, settings, controller, source=f"digital twin of {identification}")
     if on_progress is not None:
         run.on_progress = on_progress
-    with embedded_vehicle(description, seed=noise_seed, effects=EffectSet.ideal()) as link:
+    with embedded_vehicle(description, seed=settings.seed, effects=EffectSet.ideal()) as link:
         run.run(link)
     from qomni.ident.rundir import write_json
 
@@ -248,5 +213,4 @@ def _controller_of(meta: dict):
         raise TwinError(f"metadata.json controller: {exc}") from exc
 
 
-__all__ = ["REFERENCE_NOISE_STREAM", "TWIN_REFERENCE", "TwinError", "reference_noise", "reference_seed",
-           "twin_description", "twin_reference", "twin_toml", "write_twin"]
+__all__ = ["TWIN_REFERENCE", "TwinError", "twin_description", "twin_reference", "twin_toml", "write_twin"]

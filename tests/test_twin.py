@@ -13,7 +13,7 @@ from qomni.datasheet import DataSheet
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.emulator.vehicle import Emulator
-from qomni.twin import TwinError, reference_noise, reference_seed, twin_description, twin_toml
+from qomni.twin import TwinError, twin_description, twin_toml
 
 
 def test_the_twins_truth_is_the_identification_on_the_data_sheets_vehicle(tmp_path):
@@ -34,41 +34,6 @@ def test_the_twin_runs_as_the_ideal_vehicle_with_the_identified_mass(tmp_path):
         emu.set_motor_torques(np.zeros(4))
         emu.step(0.01)
         assert emu.effects.names == ()
-
-
-def _drive(desc, seed, torque=(0.4, -0.3, 0.5, -0.2), steps=50):
-    with Emulator(desc, effects=EffectSet.ideal(), seed=seed) as emu:
-        readings = []
-        for _ in range(steps):
-            emu.set_motor_torques(np.array(torque))
-            emu.step(0.002)
-            readings.append(emu.read_sensors())
-        return emu.true_state(), readings
-
-
-def test_the_reference_twin_reports_the_torque_it_applies_and_keeps_its_steering_sensors_noise():
-    """The twin's reference run is its expected behaviour: no torque ripple (its motion does not depend on
-    the noise seed), a torque actual equal to the set-point, and the steering sensors' noise kept (it drives
-    the campaign controller's loop)."""
-    twin = twin_description(identification(), DataSheet.load())
-    quiet = reference_noise(twin)
-    assert quiet.truth == twin.truth and quiet.noise.steering_sensor_lsb == twin.noise.steering_sensor_lsb > 0
-    torque = np.array([0.4, -0.3, 0.5, -0.2])
-    (a, read_a), (b, read_b) = _drive(quiet, 1), _drive(quiet, 2)
-    np.testing.assert_array_equal(a.beta, b.beta)
-    np.testing.assert_array_equal(a.applied_motor_torque, torque)
-    for r in read_a:
-        np.testing.assert_array_equal(r.motor_torque, torque)
-    assert any((ra.steering_position != rb.steering_position).any() for ra, rb in zip(read_a, read_b))
-    (c, read_c), (d, _) = _drive(twin, 1), _drive(twin, 2)
-    assert not np.array_equal(c.beta, d.beta)                  # ripple moves the noisy twin
-    assert not np.array_equal(read_c[-1].motor_torque, torque)
-
-
-def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
-    seeds = [reference_seed(s) for s in range(50)]
-    assert len(set(seeds)) == 50 and not set(seeds) & set(range(50))
-    assert reference_seed(7) == reference_seed(7) and 0 <= reference_seed(7) < 2 ** 32
 
 
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])
