@@ -21,6 +21,12 @@ What the twin is made of:
   inertia) and ``[noise]``: the built-in prototype's, since neither a data sheet nor an identification
   gives them.
 
+The twin's *reference run* (:func:`twin_reference`) draws its torque ripple and sensor noise from a
+stream of its own (:func:`reference_seed`), not from the campaign's seed. A real vehicle's noise is never
+the twin's; an emulated vehicle run with the campaign's seed would otherwise share its noise sample for
+sample with its twin, and the paired residual (``diagnosis.paired``) would cancel what no real user's
+pairing cancels. The campaign itself (excitation, segments) keeps the recorded seed.
+
 Composition root: it imports the emulator and the identification; ``ident``, ``fmu`` and ``diagnosis``
 never do.
 """
@@ -29,6 +35,8 @@ from __future__ import annotations
 import tomllib
 from dataclasses import asdict, replace
 from pathlib import Path
+
+import numpy as np
 
 from qomni.conventions import PARAMETER_NAMES
 from qomni.datasheet import DataSheet
@@ -40,6 +48,9 @@ from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, datasheet_from_me
 
 #: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
 TWIN_REFERENCE = "twin_reference"
+
+#: Entropy mixed into the campaign's seed for the reference run's emulator noise (:func:`reference_seed`).
+REFERENCE_NOISE_STREAM = 0x7A1C
 
 
 class TwinError(ValueError):
@@ -66,6 +77,15 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
                           body=body, source=source)
     description._check()
     return description
+
+
+def reference_seed(seed: int) -> int:
+    """The reference run's emulator noise seed for a campaign of seed ``seed``: a stream of its own
+    (``numpy.random.SeedSequence`` of the seed and :data:`REFERENCE_NOISE_STREAM`), so that an emulated
+    vehicle's noise and its twin's are independent, as a real vehicle's and its twin's are.
+
+    Returns: an integer in [0, 2³²)."""
+    return int(np.random.SeedSequence([int(seed), REFERENCE_NOISE_STREAM]).generate_state(1)[0])
 
 
 def twin_toml(description: VehicleDescription) -> str:
@@ -115,7 +135,8 @@ def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
 def twin_reference(identification: str | Path, data_dir: str | Path, cache: str | Path,
                    datasheet: str | Path | None = None, on_progress=None) -> Path:
     """The twin's campaign with the settings, excitation and seed recorded in ``data_dir/metadata.json``,
-    run in ``cache`` or found there from an earlier diagnosis of the same model and settings.
+    run in ``cache`` or found there from an earlier diagnosis of the same model and settings; the twin's
+    noise drawn from a stream of its own (:func:`reference_seed`).
 
     Returns:
         the run directory of the twin's campaign (signals.csv, metadata.json).
@@ -133,8 +154,9 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
     controller = _controller_of(meta)
+    noise_seed = reference_seed(settings.seed)
     key = {"twin": twin_toml(description), "settings": recorded, "controller": asdict(controller),
-           "parameters": parameters}
+           "parameters": parameters, "noise_seed": noise_seed}
     stamp = cache / TWIN_STAMP
     if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
         done = read_json(cache / METADATA)
@@ -149,7 +171,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     run = Campaign(sheet, cache, settings, controller, source=f"digital twin of {identification}")
     if on_progress is not None:
         run.on_progress = on_progress
-    with embedded_vehicle(description, seed=settings.seed, effects=EffectSet.ideal()) as link:
+    with embedded_vehicle(description, seed=noise_seed, effects=EffectSet.ideal()) as link:
         run.run(link)
     from qomni.ident.rundir import write_json
 
@@ -213,4 +235,5 @@ def _controller_of(meta: dict):
         raise TwinError(f"metadata.json controller: {exc}") from exc
 
 
-__all__ = ["TWIN_REFERENCE", "TwinError", "twin_description", "twin_reference", "twin_toml", "write_twin"]
+__all__ = ["REFERENCE_NOISE_STREAM", "TWIN_REFERENCE", "TwinError", "reference_seed", "twin_description",
+           "twin_reference", "twin_toml", "write_twin"]

@@ -13,7 +13,7 @@ from qomni.datasheet import DataSheet
 from qomni.emulator.description import VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.emulator.vehicle import Emulator
-from qomni.twin import TwinError, twin_description, twin_toml
+from qomni.twin import TwinError, reference_seed, twin_description, twin_toml
 
 
 def test_the_twins_truth_is_the_identification_on_the_data_sheets_vehicle(tmp_path):
@@ -34,6 +34,47 @@ def test_the_twin_runs_as_the_ideal_vehicle_with_the_identified_mass(tmp_path):
         emu.set_motor_torques(np.zeros(4))
         emu.step(0.01)
         assert emu.effects.names == ()
+
+
+def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
+    seeds = [reference_seed(s) for s in range(50)]
+    assert len(set(seeds)) == 50 and not set(seeds) & set(range(50))
+    assert reference_seed(7) == reference_seed(7) and 0 <= reference_seed(7) < 2 ** 32
+
+
+def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(tmp_path, monkeypatch):
+    """The twin's campaign keeps the data run's seed (excitation, segments); the emulator it drives draws
+    ripple and sensor noise from ``reference_seed`` of it, never the data run's seed; a run stopped before
+    its end leaves no stamp a later diagnosis could take for a finished reference."""
+    import json
+
+    import qomni.embedded
+    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.ident.identify import identify_run
+    from qomni.ident.rundir import TWIN_STAMP
+    from qomni.twin import twin_reference
+
+    run = tmp_path / "run"
+    settings = replace(CampaignSettings.quick(), seed=11)
+    with qomni.embedded.embedded_vehicle(VehicleDescription.load(), seed=11, effects=EffectSet.ideal()) as c:
+        Campaign(DataSheet.load(), run, settings, source="test").run(c)
+    identify_run(run)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def vehicle(description, *, seed=0, **kw):
+        seen.append(seed)
+        raise Stop
+
+    monkeypatch.setattr(qomni.embedded, "embedded_vehicle", vehicle)
+    with pytest.raises(Stop):
+        twin_reference(run / "identification.json", run, tmp_path / "ref")
+    assert seen == [reference_seed(11)] and seen[0] != 11
+    stamp = tmp_path / "ref" / TWIN_STAMP
+    assert not stamp.exists()                                    # an unfinished run is never a cache hit
+    assert json.loads((run / "metadata.json").read_text())["settings"]["seed"] == 11
 
 
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])
