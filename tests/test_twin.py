@@ -42,23 +42,32 @@ def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
     assert reference_seed(7) == reference_seed(7) and 0 <= reference_seed(7) < 2 ** 32
 
 
-def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def identified_run(tmp_path_factory):
+    """A quick campaign of seed 11 on the ideal prototype, identified (``identification.json`` beside it)."""
+    from qomni.embedded import embedded_vehicle
+    from qomni.ident.campaign import Campaign, CampaignSettings
+    from qomni.ident.identify import identify_run
+
+    run = tmp_path_factory.mktemp("twin") / "run"
+    settings = replace(CampaignSettings.quick(), seed=11)
+    with embedded_vehicle(VehicleDescription.load(), seed=11, effects=EffectSet.ideal()) as client:
+        Campaign(DataSheet.load(), run, settings, source="test").run(client)
+    identify_run(run)
+    return run
+
+
+def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(identified_run, tmp_path, monkeypatch):
     """The twin's campaign keeps the data run's seed (excitation, segments); the emulator it drives draws
     ripple and sensor noise from ``reference_seed`` of it, never the data run's seed; a run stopped before
     its end leaves no stamp a later diagnosis could take for a finished reference."""
     import json
 
     import qomni.embedded
-    from qomni.ident.campaign import Campaign, CampaignSettings
-    from qomni.ident.identify import identify_run
     from qomni.ident.rundir import TWIN_STAMP
     from qomni.twin import twin_reference
 
-    run = tmp_path / "run"
-    settings = replace(CampaignSettings.quick(), seed=11)
-    with qomni.embedded.embedded_vehicle(VehicleDescription.load(), seed=11, effects=EffectSet.ideal()) as c:
-        Campaign(DataSheet.load(), run, settings, source="test").run(c)
-    identify_run(run)
+    run = identified_run
     seen = []
 
     class Stop(Exception):
@@ -110,21 +119,15 @@ def test_the_twin_repeats_the_data_runs_campaign_settings_and_drives_no_arcs_a_r
         _settings_of({"settings": {"retired_setting": 1}})
 
 
-def test_a_model_that_is_not_physical_gets_the_twin_of_its_runs_consistent_estimate(tmp_path):
+def test_a_model_that_is_not_physical_gets_the_twin_of_its_runs_consistent_estimate(identified_run, tmp_path):
     """A model identified on the data run with a negative friction (as a long actuator delay gives) is not a
     vehicle: the twin is made from the same run re-identified with the consistent estimator, and says so.
     A model from another run is refused as before."""
     import json
 
-    from qomni.embedded import embedded_vehicle
-    from qomni.ident.campaign import Campaign, CampaignSettings
-    from qomni.ident.identify import identify_run
     from qomni.twin import _twin_of
 
-    run = tmp_path / "run"
-    with embedded_vehicle(VehicleDescription.load(), seed=3, effects=EffectSet.ideal()) as client:
-        Campaign(DataSheet.load(), run, CampaignSettings.quick(), source="test").run(client)
-    identify_run(run)
+    run = identified_run
     data = json.loads((run / "identification.json").read_text())
     data["parameters"]["d_vl"]["value"] = -2.0
     model = tmp_path / "model.json"
