@@ -184,6 +184,9 @@ def main(argv=None) -> int:
                     "hypothesis (unexplained structure, another effect, or nothing)")
     ap.add_argument("--recorded-only", action="store_true",
                     help="diagnose only the cases already recorded in --work (no new campaigns)")
+    ap.add_argument("--twin-runs", type=int, default=None, metavar="K",
+                    help="runs of each case's twin campaign on independent noise draws, the data diagnosed "
+                         "beyond their mean residual (default: the results file's, else 1)")
     args = ap.parse_args(argv)
     console = Console() if sys.stdout.isatty() else Console(width=200)
     if args.range_ends:
@@ -212,21 +215,29 @@ def main(argv=None) -> int:
     pairs = args.pairs if args.pairs is not None else counts["pairs"]
     triples = args.triples if args.triples is not None else counts["triples"]
     effects = args.effects if args.effects is not None else recorded.get("effects")
-    held = counts if recorded else {}
+    # a results file from before --twin-runs diagnosed against one twin run
+    twin_runs = args.twin_runs or recorded.get("twin_runs", 1)
+    if twin_runs < 1 or (twin_runs > 1 and args.reference != "twin"):
+        console.print("--twin-runs needs a positive count, and more than 1 only with the twin reference",
+                      markup=False)
+        return 2
+    held = {"twin_runs": 1, **counts} if recorded and args.reference == "twin" else counts if recorded else {}
     for key, value in (("campaigns", campaigns), ("singles", singles), ("pairs", pairs), ("triples", triples),
                        ("effects", effects),
-                       ("reference", args.reference)):
+                       ("reference", args.reference), ("twin_runs", twin_runs)):
         if key in held and held[key] != value:
             console.print(f"{results_path} holds a suite with {key} = {held[key]!r}, not {value!r}; "
                           f"use another --work", markup=False)
             return 2
     todo = draw_cases(master, singles=singles, pairs=pairs, triples=triples, entries=effects)
     run = {"master_seed": master, "reference": args.reference, "campaigns": campaigns, "singles": singles,
-           "pairs": pairs, "triples": triples, "effects": effects}
+           "pairs": pairs, "triples": triples, "effects": effects,
+           **({"twin_runs": twin_runs} if twin_runs > 1 else {})}
     if args.recorded_only:
         todo = [c for c in todo if (args.work / c.name / "identification.json").exists()]
     console.print(f"{len(todo)} cases of master seed {master} in {args.work} ({campaigns} campaigns, "
-                  f"{args.reference} reference)", markup=False)
+                  f"{args.reference} reference" + (f", {twin_runs} twin runs" if twin_runs > 1 else "") + ")",
+                  markup=False)
     started = time.perf_counter()
 
     def show(r):
@@ -246,7 +257,7 @@ def main(argv=None) -> int:
     try:
         results = run_suite(todo, args.work, quick=campaigns == "quick", workers=args.workers, executor=executor,
                             results_path=None if args.probe else results_path, on_result=show,
-                            runner=runner, reference=args.reference, run=run)
+                            runner=runner, reference=args.reference, run=run, twin_runs=twin_runs)
     finally:
         if client is not None:
             client.close()

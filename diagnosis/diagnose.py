@@ -150,6 +150,9 @@ class Diagnosis:
     #: its gate (:func:`further_gates`) and its shares of held-out residual removed by step, and the one
     #: ``named`` (None: the round that ended selection)
     selection: list[dict] = field(default_factory=list)
+    #: the further runs of the reference's campaign whose residuals were averaged with the reference's
+    #: in the paired channels (their directories); empty with a single reference run
+    reference_repeats: list[str] = field(default_factory=list)
 
 
 #: A further effect that removes less than MIN_SHRINK_MORE of its channel's held-out residual is still
@@ -596,8 +599,22 @@ def _load_run(run_dir, model: IdentificationResult):
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 
+def _repeat_channels(dirs, data_meta: dict, model: IdentificationResult, cycle_time: float) -> list[tuple]:
+    """(channels, lane-change steering channels) of each repeat of the reference run under ``model``.
+
+    Raises: ValueError: a repeat is not the data's campaign run again (:func:`.paired.paired_runs`)."""
+    out = []
+    for d in dirs:
+        signals, sheet, meta = _load_run(d, model)
+        if not paired_runs(data_meta, meta, cycle_time):
+            raise ValueError(f"reference repeat {d} is not a run of the data's campaign (its metadata.json "
+                             "settings or segments differ)")
+        out.append(_channels_and_steering(signals, sheet, model))
+    return out
+
+
 def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str | Path | None = None,
-             *, reference_dir: str | Path | None = None, simulate: bool = True,
+             *, reference_dir: str | Path | None = None, reference_repeats=(), simulate: bool = True,
              model_source: str = "", model_from_data: bool = False,
              withhold: tuple[str, ...] = ()) -> Diagnosis:
     """Diagnose the gap between ``model`` and the run in ``data_dir``.
@@ -613,6 +630,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             ran the data's own campaign (the twin, :func:`.paired.paired_runs`) and no ``holdout_dir``
             is given, each torque channel is diagnosed beyond its residual at the same sample
             (:mod:`.paired`).
+        reference_repeats: run directories of further runs of the reference's campaign on independent
+            noise draws (the twin's repeats, ``qomni.twin.twin_references``): the paired channels are then
+            diagnosed beyond the mean residual of all the reference runs (:mod:`.paired`).
         simulate: also compare forward simulations (a few seconds of CPU).
         model_from_data: the model was identified on ``data_dir`` itself. Its base parameters are then
             free in every fit instead of held within PRIOR_STD_FACTOR·σ_model of the identified values:
@@ -623,7 +643,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             says of an effect it has no hypothesis for (``benchmarks/blind_suite.py --withhold``).
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
-        ValueError: ``withhold`` names a hypothesis the library does not have.
+        ValueError: ``withhold`` names a hypothesis the library does not have; ``reference_repeats``
+            without a reference run paired with the data, or a repeat that is not its campaign again.
     """
     available = library(model_from_data)
     unknown = set(withhold) - {h.name for h in available}
@@ -669,9 +690,14 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         ref_plain, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
         ref_problem = ref_plain
         if hold is None and paired_runs(meta, r_meta, sheet.drive.cycle_time):
-            fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time)
+            repeats = _repeat_channels(reference_repeats, meta, model, sheet.drive.cycle_time)
+            fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time, tuple(r for r, _ in repeats))
             paired_names = [c.name for c in fit_chans if c.paired is not None]
-            steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time)
+            steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time,
+                                             tuple(r for _, r in repeats))
+    if reference_repeats and not paired_names:
+        raise ValueError("reference repeats need a reference run of the data's own campaign to pair with "
+                         "(and no second run as held-out data)")
     fp, hp = make_problem(fit_chans, lag, hold, base_prior=prior, measured=measured)
     if paired_names:
         own_weights = {c.name: w for c, w in zip(fp.channels, fp.weights) if c.paired is not None}
@@ -761,7 +787,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                      str(reference_dir) if ref_problem is not None else "none",
                      ref_chans, where_.breakdown(ref_chans, lag),
                      _reference_holdout(ref_plain, accepted_fits, len(base.delta_p)), ref_sim,
-                     model_from_data, equivalent, lifted or {}, paired_names, selection)
+                     model_from_data, equivalent, lifted or {}, paired_names, selection,
+                     [str(d) for d in reference_repeats])
 
 
 def equivalents(candidates: list[fitting.Candidate], accepted: list[fitting.Candidate]) -> dict:

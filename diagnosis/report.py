@@ -157,6 +157,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "reference": d.reference,
         "reference_parameters": reference_parameters(d.reference),
         "paired_channels": d.paired_channels,
+        "reference_repeats": d.reference_repeats,
         "model_identified_on_data": d.model_from_data,
         "base_parameters": _base_parameters(d),
         "lifted_wheel_friction": {n: {"value": v, "std": s} for n, (v, s) in d.lifted.items()},
@@ -345,6 +346,9 @@ def report_html(d: Diagnosis, gap: dict) -> str:
     sim = figures.simulation_bars(d)
     _, overlay = figures.overlay_effects(d)
     ref = d.reference if d.reference != "none" else "none (each hypothesis tested against zero)"
+    if d.reference_repeats:
+        ref += (f", with {len(d.reference_repeats)} further run(s) of its campaign: paired channels diagnosed "
+                f"beyond the mean residual of all {len(d.reference_repeats) + 1}")
     status = gap["data_run"].get("status", "not recorded") if gap.get("data_run") else "not recorded"
     spikes = (gap.get("data_run") or {}).get("spikes") or {}
     glitches = (f"; {spikes['total_corrupt']} isolated glitches "

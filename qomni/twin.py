@@ -25,7 +25,10 @@ The twin's *reference run* (:func:`twin_reference`) draws its torque ripple and 
 stream of its own (:func:`reference_seed`), not from the campaign's seed. A real vehicle's noise is never
 the twin's; an emulated vehicle run with the campaign's seed would otherwise share its noise sample for
 sample with its twin, and the paired residual (``diagnosis.paired``) would cancel what no real user's
-pairing cancels. The campaign itself (excitation, segments) keeps the recorded seed.
+pairing cancels. The campaign itself (excitation, segments) keeps the recorded seed. The reference may
+be run more than once (:func:`twin_references`), each repeat on a further stream of its own: the
+diagnosis then subtracts the repeats' mean residual, whose noise is the single run's over √runs, while
+what the model's structure leaves (the same in every repeat) stays whole.
 
 Composition root: it imports the emulator and the identification; ``ident``, ``fmu`` and ``diagnosis``
 never do.
@@ -79,13 +82,25 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     return description
 
 
-def reference_seed(seed: int) -> int:
-    """The reference run's emulator noise seed for a campaign of seed ``seed``: a stream of its own
-    (``numpy.random.SeedSequence`` of the seed and :data:`REFERENCE_NOISE_STREAM`), so that an emulated
-    vehicle's noise and its twin's are independent, as a real vehicle's and its twin's are.
+def reference_seed(seed: int, run: int = 0) -> int:
+    """The emulator noise seed of the twin's reference run number ``run`` for a campaign of seed ``seed``: a
+    stream of its own (``numpy.random.SeedSequence`` of the seed, :data:`REFERENCE_NOISE_STREAM` and, for
+    a repeat ``run`` ≥ 1, the run number), so that an emulated vehicle's noise and its twin's are
+    independent, as a real vehicle's and its twin's are, and so are the twin's repeats.
 
-    Returns: an integer in [0, 2³²)."""
-    return int(np.random.SeedSequence([int(seed), REFERENCE_NOISE_STREAM]).generate_state(1)[0])
+    Returns: an integer in [0, 2³²).
+    Raises: ValueError: ``run`` is negative."""
+    if run < 0:
+        raise ValueError(f"reference run number {run} is negative")
+    entropy = [int(seed), REFERENCE_NOISE_STREAM] + ([int(run)] if run else [])
+    return int(np.random.SeedSequence(entropy).generate_state(1)[0])
+
+
+def repeat_dir(cache: str | Path, run: int) -> Path:
+    """Where the twin's reference run number ``run`` is kept: ``cache`` itself for run 0, the sibling
+    ``<cache>_<run>`` for a repeat."""
+    cache = Path(cache)
+    return cache if run == 0 else cache.with_name(f"{cache.name}_{run}")
 
 
 def twin_toml(description: VehicleDescription) -> str:
@@ -132,11 +147,28 @@ def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
     return datasheet_from_metadata(read_json(run / METADATA), str(run / METADATA))
 
 
+def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,
+                    datasheet: str | Path | None = None, on_progress=None) -> list[Path]:
+    """``runs`` reference runs of the twin (:func:`twin_reference` with run numbers 0 … runs − 1), kept in
+    ``cache`` and its siblings ``<cache>_1`` … (:func:`repeat_dir`): the same campaign under independent
+    noise draws, whose mean residual is the twin's residual with its noise shrunk by √runs
+    (``qomni.diagnosis.paired``).
+
+    Returns: the run directories, run 0 first.
+    Raises:
+        ValueError: ``runs`` < 1. RunDirectoryError, TwinError, CampaignAborted: as :func:`twin_reference`.
+    """
+    if runs < 1:
+        raise ValueError(f"the twin needs at least one reference run, not {runs}")
+    return [twin_reference(identification, data_dir, repeat_dir(cache, k), datasheet, on_progress, run=k)
+            for k in range(runs)]
+
+
 def twin_reference(identification: str | Path, data_dir: str | Path, cache: str | Path,
-                   datasheet: str | Path | None = None, on_progress=None) -> Path:
+                   datasheet: str | Path | None = None, on_progress=None, run: int = 0) -> Path:
     """The twin's campaign with the settings, excitation and seed recorded in ``data_dir/metadata.json``,
     run in ``cache`` or found there from an earlier diagnosis of the same model and settings; the twin's
-    noise drawn from a stream of its own (:func:`reference_seed`).
+    noise drawn from a stream of its own, ``run`` numbering independent draws (:func:`reference_seed`).
 
     Returns:
         the run directory of the twin's campaign (signals.csv, metadata.json).
@@ -154,7 +186,7 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
     controller = _controller_of(meta)
-    noise_seed = reference_seed(settings.seed)
+    noise_seed = reference_seed(settings.seed, run)
     key = {"twin": twin_toml(description), "settings": recorded, "controller": asdict(controller),
            "parameters": parameters, "noise_seed": noise_seed}
     stamp = cache / TWIN_STAMP
@@ -235,5 +267,5 @@ def _controller_of(meta: dict):
         raise TwinError(f"metadata.json controller: {exc}") from exc
 
 
-__all__ = ["REFERENCE_NOISE_STREAM", "TWIN_REFERENCE", "TwinError", "reference_seed", "twin_description",
-           "twin_reference", "twin_toml", "write_twin"]
+__all__ = ["REFERENCE_NOISE_STREAM", "TWIN_REFERENCE", "TwinError", "reference_seed", "repeat_dir",
+           "twin_description", "twin_reference", "twin_references", "twin_toml", "write_twin"]

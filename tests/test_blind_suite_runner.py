@@ -166,6 +166,8 @@ def test_a_case_campaign_replaces_what_an_attempt_cut_short_left(tmp_path, monke
 def test_an_unknown_reference_mode_is_refused(tmp_path):
     with pytest.raises(ValueError, match="reference"):
         run_suite([], tmp_path, reference="nominal")
+    with pytest.raises(ValueError, match="at least one"):
+        run_suite([], tmp_path, twin_runs=0)
 
 
 class _OnlyNew:
@@ -214,7 +216,7 @@ def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path,
     assert "of master seed 2027" in capsys.readouterr().out
     assert read_run(tmp_path / "blind_suite.json") == run
     for other in (["--campaigns", "full"], ["--singles", "5"], ["--pairs", "4"], ["--triples", "1"],
-                  ["--effects", "payload"], ["--master-seed", "3"]):
+                  ["--effects", "payload"], ["--master-seed", "3"], ["--twin-runs", "3"]):
         assert main(["--work", str(tmp_path), "--recorded-only", *other]) == 2
         assert "use another --work" in capsys.readouterr().out
         assert read_run(tmp_path / "blind_suite.json") == run
@@ -222,6 +224,13 @@ def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path,
     assert main(["--work", str(tmp_path), "--recorded-only", "--quick", "--reference", "ideal"]) == 0
     assert read_run(tmp_path / "blind_suite_ideal.json") == {**run, "reference": "ideal"}
     assert read_run(tmp_path / "blind_suite.json") == run
+    # the twin's repeats are a twin-reference setting, recorded where there are any
+    assert main(["--work", str(tmp_path), "--recorded-only", "--reference", "ideal", "--twin-runs", "2"]) == 2
+    assert main(["--work", str(tmp_path / "k3"), "--recorded-only", "--quick", "--master-seed", "2027",
+                 "--twin-runs", "3"]) == 0
+    assert read_run(tmp_path / "k3" / "blind_suite.json")["twin_runs"] == 3
+    assert main(["--work", str(tmp_path / "k3"), "--recorded-only"]) == 0         # the recorded 3 is the default
+    assert main(["--work", str(tmp_path / "k3"), "--recorded-only", "--twin-runs", "1"]) == 2
 
 
 def test_a_results_file_without_its_combination_counts_was_drawn_with_the_defaults(tmp_path, capsys):

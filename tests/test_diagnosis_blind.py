@@ -4,9 +4,11 @@ diagnosed against a model identified on the ideal emulator, told nothing about t
 The full suite (every effect × 5 seeds × 2 magnitudes) is ``python benchmarks/blind_suite.py``.
 """
 import json
+import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from qomni.blind_suite import Case, run_suite, score
@@ -155,6 +157,52 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     assert twin_meta["segments"] == data_meta["segments"]
     torque = {c for c in gap["model_holdout_rms"] if "/kinematic_" not in c and "/rolling_" not in c}
     assert torque and set(gap["paired_channels"]) == torque
+
+
+@pytest.mark.slow
+def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_effect(suite, tmp_path):
+    """``--twin-runs 3``: the twin's campaign run on three noise draws (the first is the single reference
+    run, the others its siblings); the paired channels are diagnosed beyond the runs' mean residual,
+    whose noise is a third of one run's, so the clean run's held-out residual left in them is lower than
+    against the single run. A repeat that is not the data's campaign is refused, and so are repeats with
+    a reference that is not the twin."""
+    from qomni.diagnosis.diagnose import diagnose_paths
+
+    work, _ = suite
+    run, out = work / "ideal", tmp_path / "twin_gap3"
+    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
+                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
+                             "--no-simulate", "--twin-runs", "3"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    gap = json.loads((out / "gap.json").read_text())
+    assert gap["reference"] == str(out / "twin_reference")
+    assert gap["reference_repeats"] == [str(out / "twin_reference_1"), str(out / "twin_reference_2")]
+    assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
+    metas = [json.loads((out / d / "metadata.json").read_text())
+             for d in ("twin_reference", "twin_reference_1", "twin_reference_2")]
+    assert all(m["settings"] == metas[0]["settings"] and m["segments"] == metas[0]["segments"] for m in metas)
+    signals = [(out / d / "signals.csv").read_bytes() for d in ("twin_reference", "twin_reference_1")]
+    assert signals[0] != signals[1]                                        # another noise draw
+    single = diagnose_paths(run / "identification.json", run, reference_dir=out / "twin_reference",
+                            simulate=False)
+    paired = gap["paired_channels"]
+    assert paired and set(paired) == set(single.paired_channels)
+    floor = lambda rms: float(np.sqrt(np.mean([rms[c] ** 2 for c in paired])))
+    assert floor(gap["base_fit_holdout_rms"]) < 0.95 * floor(single.holdout_rms)
+    other = tmp_path / "other_campaign"                 # the twin's repeat, as if another seed's campaign
+    shutil.copytree(out / "twin_reference_1", other)
+    meta = json.loads((other / "metadata.json").read_text())
+    meta["settings"]["seed"] += 1
+    (other / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="not a run of the data's campaign"):
+        diagnose_paths(run / "identification.json", run, reference_dir=out / "twin_reference",
+                       reference_repeats=[other], simulate=False)
+    refused = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
+                              str(run / "identification.json"), "--data", str(run), "--out", str(tmp_path / "r"),
+                              "--reference", str(out / "twin_reference"), "--twin-runs", "2"],
+                             capture_output=True, text=True)
+    assert refused.returncode != 0 and "Traceback" not in refused.stderr
+    assert "--twin-runs" in refused.stdout + refused.stderr
 
 
 @pytest.mark.slow

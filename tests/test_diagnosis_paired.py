@@ -80,3 +80,44 @@ def test_a_paired_torque_channel_keeps_what_the_twin_does_not_show_at_the_same_s
     np.testing.assert_allclose(r[0].residual, 0.0, atol=1e-12)                   # the twin holds none of it
     # kinematic channels stay as they are, in both runs
     assert d[1] is data[1] and r[1] is ref[1] and d[1].paired is None
+
+
+def test_repeats_of_the_reference_pair_the_data_with_their_mean_residual():
+    """Further runs of the twin's campaign on other noise draws: the data are paired with the mean of the
+    runs' residuals, whose noise shrinks as 1/√K while the structure they share stays whole; a sample
+    missing from any run is not fitted, and a channel one run lacks stays unpaired."""
+    rng = np.random.default_rng(5)
+    t = 1.0 + TS * np.arange(4000)
+    structure = 12.0 * np.sin(2 * np.pi * 1.3 * t)
+    effect = 2.0 * np.cos(2 * np.pi * 0.7 * t)
+    model = np.zeros_like(t)
+    noise = 1.0
+    data_y = structure + effect + noise * rng.standard_normal(len(t))
+    data = [_channel("straight/x_ch", "torque", t, data_y, model),
+            _channel("rotation/gamma_ch", "torque", t, data_y, model)]
+
+    def twin(missing=None, with_rotation=True):
+        keep = np.ones(len(t), bool)
+        if missing is not None:
+            keep[missing] = False
+        y = structure + noise * rng.standard_normal(len(t))
+        run = [_channel("straight/x_ch", "torque", t[keep], y[keep], model[keep])]
+        if with_rotation:
+            run.append(_channel("rotation/gamma_ch", "torque", t, y, model))
+        return run
+
+    runs = [twin(), twin(missing=40), twin(missing=41), twin(with_rotation=False)]
+    one, _ = pair_channels(data, runs[0], TS)
+    three, r = pair_channels(data, runs[0], TS, tuple(runs[1:3]))
+    straight = three[0]
+    assert not straight.fitted[40] and not straight.fitted[41] and straight.fitted.sum() == len(t) - 2
+    rows = straight.fitted
+    means = np.mean([run[0].residual[np.searchsorted(run[0].time, t[rows])] for run in runs[:3]], axis=0)
+    np.testing.assert_allclose(straight.paired[rows], means)
+    gap_one = np.std(one[0].residual[rows] - effect[rows])           # data's noise and one run's: √2
+    gap_three = np.std(straight.residual[rows] - effect[rows])       # data's and three runs' mean: √(4/3)
+    assert abs(gap_one - noise * np.sqrt(2)) < 0.05 and abs(gap_three - noise * np.sqrt(4 / 3)) < 0.05
+    np.testing.assert_allclose(r[0].residual, 0.0, atol=1e-12)
+    # the rotation's channel is missing from the last repeat: it stays unpaired
+    partial, _ = pair_channels(data, runs[0], TS, (runs[1], runs[3]))
+    assert partial[1].paired is None and partial[0].paired is not None

@@ -3,6 +3,7 @@ vehicle, with the paper's idealised bodies; written as a vehicle file the emulat
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,6 +43,15 @@ def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
     assert reference_seed(7) == reference_seed(7) and 0 <= reference_seed(7) < 2 ** 32
 
 
+def test_the_twins_repeats_draw_their_noise_apart_from_each_other_and_from_the_campaign():
+    repeats = {(s, k): reference_seed(s, k) for s in range(20) for k in range(4)}
+    assert len(set(repeats.values())) == len(repeats)              # every (campaign, run) its own stream
+    assert not set(repeats.values()) & set(range(20))
+    assert all(reference_seed(s) == repeats[s, 0] for s in range(20))   # run 0 is the single reference run
+    with pytest.raises(ValueError, match="negative"):
+        reference_seed(3, -1)
+
+
 @pytest.fixture(scope="module")
 def identified_run(tmp_path_factory):
     """A quick campaign of seed 11 on the ideal prototype, identified (``identification.json`` beside it)."""
@@ -57,33 +67,70 @@ def identified_run(tmp_path_factory):
     return run
 
 
-def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(identified_run, tmp_path, monkeypatch):
+class _Stop(Exception):
+    """Raised by the emulator stand-in of :func:`seeds_handed_to_the_emulator` once it has its seed."""
+
+
+@pytest.fixture
+def seeds_handed_to_the_emulator(monkeypatch):
+    """The noise seeds the twin's campaigns hand the emulator, in order: the emulator factory is replaced by
+    one that records its seed and raises :class:`_Stop` instead of driving a campaign."""
+    import qomni.embedded
+
+    seen = []
+
+    def vehicle(description, *, seed=0, **kw):
+        seen.append(seed)
+        raise _Stop
+
+    monkeypatch.setattr(qomni.embedded, "embedded_vehicle", vehicle)
+    return seen
+
+
+def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(identified_run, tmp_path,
+                                                                       seeds_handed_to_the_emulator):
     """The twin's campaign keeps the data run's seed (excitation, segments); the emulator it drives draws
     ripple and sensor noise from ``reference_seed`` of it, never the data run's seed; a run stopped before
     its end leaves no stamp a later diagnosis could take for a finished reference."""
     import json
 
-    import qomni.embedded
     from qomni.ident.rundir import TWIN_STAMP
     from qomni.twin import twin_reference
 
     run = identified_run
-    seen = []
-
-    class Stop(Exception):
-        pass
-
-    def vehicle(description, *, seed=0, **kw):
-        seen.append(seed)
-        raise Stop
-
-    monkeypatch.setattr(qomni.embedded, "embedded_vehicle", vehicle)
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         twin_reference(run / "identification.json", run, tmp_path / "ref")
+    seen = seeds_handed_to_the_emulator
     assert seen == [reference_seed(11)] and seen[0] != 11
     stamp = tmp_path / "ref" / TWIN_STAMP
     assert not stamp.exists()                                    # an unfinished run is never a cache hit
     assert json.loads((run / "metadata.json").read_text())["settings"]["seed"] == 11
+
+
+def test_each_of_the_twins_runs_has_its_own_directory_and_noise_stream(identified_run, tmp_path, monkeypatch,
+                                                                       seeds_handed_to_the_emulator):
+    """``twin_references`` runs the same campaign once per run number, run 0 in the cache and each repeat in
+    a sibling, every one on its own noise seed."""
+    import qomni.twin
+    from qomni.twin import twin_references
+
+    run = identified_run
+    calls = []
+    real = qomni.twin.twin_reference
+
+    def recorded(identification, data_dir, cache, datasheet=None, on_progress=None, run=0):
+        calls.append((Path(cache).name, run))
+        with pytest.raises(_Stop):
+            real(identification, data_dir, cache, datasheet, on_progress, run=run)
+        return Path(cache)
+
+    monkeypatch.setattr(qomni.twin, "twin_reference", recorded)
+    dirs = twin_references(run / "identification.json", run, tmp_path / "twin_reference", runs=3)
+    assert [d.name for d in dirs] == ["twin_reference", "twin_reference_1", "twin_reference_2"]
+    assert calls == [("twin_reference", 0), ("twin_reference_1", 1), ("twin_reference_2", 2)]
+    assert seeds_handed_to_the_emulator == [reference_seed(11, k) for k in range(3)]
+    with pytest.raises(ValueError, match="at least one"):
+        twin_references(run / "identification.json", run, tmp_path / "none", runs=0)
 
 
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])

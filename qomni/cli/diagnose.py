@@ -25,17 +25,24 @@ def diagnose(
                                   "was identified on). Default: the model's digital twin, run with the "
                                   "data's campaign settings and kept in OUT/twin_reference."),
     datasheet: Optional[Path] = typer.Option(None, help="Data sheet of the twin (default: the data's)."),
+    twin_runs: int = typer.Option(1, "--twin-runs", min=1, help="Runs of the twin's campaign on independent "
+                                  "noise draws, kept in OUT/twin_reference, OUT/twin_reference_1, …; the data "
+                                  "are diagnosed beyond their mean residual, whose noise shrinks by √runs."),
 ):
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from qomni.diagnosis.diagnose import diagnose_paths
     from qomni.diagnosis.report import reference_parameters, unnamed_further, write_report
 
+    repeats: list[Path] = []
     if reference is None:
-        reference = _twin_reference(model, data, out / "twin_reference", datasheet)
+        reference, *repeats = _twin_references(model, data, out / "twin_reference", datasheet, twin_runs)
+    elif twin_runs != 1:
+        fail("--twin-runs repeats the twin's campaign; with --reference RUN there is no twin to repeat")
     elif not reference.is_dir():
         fail(f"--reference {reference} is not a run directory")
-    d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference, simulate=simulate))
+    d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference, reference_repeats=repeats,
+                                       simulate=simulate))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
     for col in ("#", "Effect", "Magnitude", "95 % CI", "p", "Held-out shrink", "beyond base fit", "Channel",
                 "Significant"):
@@ -53,22 +60,26 @@ def diagnose(
         console.print(Text(f"not named beside it: {effect} (p = {p:.2g}, level {level:.2g}): "
                            + "; ".join(failed)))
     json_path, html_path = write_report(d, out)
-    console.print(f"reference run: {d.reference}")
+    console.print(Text(f"reference run: {d.reference}" + (f" and {len(d.reference_repeats)} repeat(s) of it"
+                                                          if d.reference_repeats else "")))
     twin_parameters = reference_parameters(d.reference)
     if twin_parameters:
         console.print(Text(f"twin made from: {twin_parameters}"))
     console.print(f"written {json_path} and {html_path}")
 
 
-def _twin_reference(model: Path, data: Path, cache: Path, datasheet: Optional[Path]) -> Path:
-    """The model's digital twin's campaign (qomni.twin), run once and kept in ``cache``."""
+def _twin_references(model: Path, data: Path, cache: Path, datasheet: Optional[Path], runs: int) -> list[Path]:
+    """The model's digital twin's campaign (qomni.twin), run ``runs`` times and kept in ``cache`` and its
+    siblings."""
     from qomni.datasheet import DataSheetError
     from qomni.ident.campaign import CampaignAborted
-    from qomni.twin import TwinError, twin_reference
+    from qomni.twin import TwinError, repeat_dir, twin_reference
 
     try:
-        return guarded(lambda: run_with_progress(
-            "twin campaign", lambda cb: twin_reference(model, data, cache, datasheet, on_progress=cb)))
+        return [guarded(lambda k=k: run_with_progress(
+                    "twin campaign" + (f" {k + 1}/{runs}" if runs > 1 else ""),
+                    lambda cb: twin_reference(model, data, repeat_dir(cache, k), datasheet, on_progress=cb, run=k)))
+                for k in range(runs)]
     except (TwinError, DataSheetError, CampaignAborted, TypeError) as exc:
         fail(f"cannot run the model's digital twin: {exc}")
 

@@ -5,7 +5,8 @@ Two reference modes:
 
 * ``twin`` (default, a real user's mode): the case's own campaign is identified, its digital twin
   (:mod:`qomni.twin`: the emulator with the identified parameters) runs the same campaign, and the case is
-  diagnosed against that twin run. Nothing but the case's own data and its data sheet goes in.
+  diagnosed against that twin run (or the mean of ``twin_runs`` runs of it on independent noise draws).
+  Nothing but the case's own data and its data sheet goes in.
 * ``ideal``: every case is diagnosed against a model identified on an ideal emulator of its vehicle
   (one reference campaign per vehicle, run on the driver first).
 
@@ -17,6 +18,7 @@ offered: on these machines a Ray head binds every interface whatever address it 
 """
 from __future__ import annotations
 
+import functools
 import os
 import socket
 import subprocess
@@ -76,12 +78,13 @@ def reference_run(work: Path, quick: bool, seed: int = 1, vehicle: str = "") -> 
     return ref / "identification.json"
 
 
-def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
+def run_case(case: Case, work: str, reference: str, quick: bool, twin_runs: int = 1) -> CaseResult:
     """Campaign and blind diagnosis of one case (in a worker process) against ``reference``: "twin" (the
-    case's own identified model and its twin's campaign) or "ideal" (the vehicle's ideal reference run)."""
+    case's own identified model and ``twin_runs`` runs of its twin's campaign, :func:`qomni.twin.twin_references`)
+    or "ideal" (the vehicle's ideal reference run)."""
     from qomni.diagnosis.diagnose import diagnose_paths
     from qomni.diagnosis.report import write_report
-    from qomni.twin import TWIN_REFERENCE, twin_reference
+    from qomni.twin import TWIN_REFERENCE, twin_references
 
     started = time.perf_counter()
     result = CaseResult(case)
@@ -91,11 +94,11 @@ def run_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
             run_campaign(run_dir, None if case.prototype else case.effects, case.seed, quick, case.vehicle)
         if reference == "twin":
             model = run_dir / "identification.json"
-            ref_dir = twin_reference(model, run_dir, run_dir / TWIN_REFERENCE)
+            ref_dir, *repeats = twin_references(model, run_dir, run_dir / TWIN_REFERENCE, twin_runs)
         else:
             model = ideal_reference(Path(work), case.vehicle) / "identification.json"
-            ref_dir = None
-        d = diagnose_paths(model, run_dir, reference_dir=ref_dir, simulate=False)
+            ref_dir, repeats = None, []
+        d = diagnose_paths(model, run_dir, reference_dir=ref_dir, reference_repeats=repeats, simulate=False)
         write_report(d, run_dir / ("gap" if reference == "ideal" else "gap_twin"))
         _fill(result, d)
     except Exception as exc:  # a failed case is reported, not fatal to the suite
@@ -137,7 +140,8 @@ def _fill(result: CaseResult, d) -> None:
 
 def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, workers: int | None = None,
               executor: Executor | None = None, results_path: str | Path | None = None, on_result=None,
-              runner=None, reference: str = "twin", run: dict | None = None) -> list[CaseResult]:
+              runner=None, reference: str = "twin", run: dict | None = None,
+              twin_runs: int = 1) -> list[CaseResult]:
     """Run every case as tasks of ``executor`` (in the ideal mode, each vehicle's reference campaign
     first, on the driver).
 
@@ -152,13 +156,16 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
         on_result: called with each finished :class:`CaseResult`.
         runner: ``(case, work, reference, quick) -> CaseResult``, default :func:`run_case`.
         reference: "twin" or "ideal" (module docstring). run: recorded in the results file (master seed…).
+        twin_runs: the twin reference's runs per case (:func:`run_case`; :func:`run_case` only).
     Returns:
         the results of every case, the resumed ones included.
     Raises:
-        ValueError: an unknown reference mode.
+        ValueError: an unknown reference mode, or ``twin_runs`` < 1.
     """
     if reference not in REFERENCES:
         raise ValueError(f"reference must be one of {REFERENCES}, not {reference!r}")
+    if twin_runs < 1:
+        raise ValueError(f"the twin needs at least one reference run, not {twin_runs}")
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     runner = runner or run_case
@@ -173,7 +180,8 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
     own = executor is None
     executor = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1)
     try:
-        futures = [executor.submit(runner, c, str(work), reference, quick) for c in all_cases
+        task = functools.partial(run_case, twin_runs=twin_runs) if runner is run_case else runner
+        futures = [executor.submit(task, c, str(work), reference, quick) for c in all_cases
                    if c.name not in done]
         for f in as_completed(futures):
             r = f.result()
