@@ -170,6 +170,26 @@ def test_an_unknown_reference_mode_is_refused(tmp_path):
         run_suite([], tmp_path, twin_runs=0)
 
 
+def test_each_case_is_diagnosed_against_as_many_twin_runs_as_the_suite_asks(tmp_path, monkeypatch):
+    """``run_suite(twin_runs=K)`` hands K to every case's campaign-and-diagnosis task."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from qomni.suite import runner
+
+    asked = []
+
+    def task(case, work, reference, quick, twin_runs=1):
+        asked.append((case.name, reference, twin_runs))
+        return CaseResult(case)
+
+    monkeypatch.setattr(runner, "run_case", task)
+    cases = draw_cases(5, singles=1, pairs=0, triples=0, other_vehicle_singles=0, clean=0)[:2]
+    with ThreadPoolExecutor(1) as pool:                     # threads: the stand-in task is not pickled
+        run_suite(cases, tmp_path, executor=pool, twin_runs=3)
+        run_suite(cases[:1], tmp_path / "one", executor=pool)
+    assert sorted(asked) == sorted([(c.name, "twin", 3) for c in cases] + [(cases[0].name, "twin", 1)])
+
+
 class _OnlyNew:
     """A picklable runner that refuses the cases already in the results file."""
 
