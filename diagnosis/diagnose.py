@@ -39,7 +39,7 @@ from . import evaluation
 from . import fit as fitting
 from . import where as where_
 from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
-from .paired import pair_channels, paired_runs
+from .paired import PairingError, pair_channels, paired_runs
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
 from .setpoint_timing import LAG, report_lag_ruled_out, timing_by_setpoint
@@ -602,12 +602,12 @@ def _load_run(run_dir, model: IdentificationResult):
 def _repeat_channels(dirs, data_meta: dict, model: IdentificationResult, cycle_time: float) -> list[tuple]:
     """(channels, lane-change steering channels) of each repeat of the reference run under ``model``.
 
-    Raises: ValueError: a repeat is not the data's campaign run again (:func:`.paired.paired_runs`)."""
+    Raises: PairingError: a repeat is not the data's campaign run again (:func:`.paired.paired_runs`)."""
     out = []
     for d in dirs:
         signals, sheet, meta = _load_run(d, model)
         if not paired_runs(data_meta, meta, cycle_time):
-            raise ValueError(f"reference repeat {d} is not a run of the data's campaign (its metadata.json "
+            raise PairingError(f"reference repeat {d} is not a run of the data's campaign (its metadata.json "
                              "settings or segments differ)")
         out.append(_channels_and_steering(signals, sheet, model))
     return out
@@ -643,8 +643,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             says of an effect it has no hypothesis for (``benchmarks/blind_suite.py --withhold``).
     Raises:
         RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
-        ValueError: ``withhold`` names a hypothesis the library does not have; ``reference_repeats``
-            without a reference run paired with the data, or a repeat that is not its campaign again.
+        ValueError: ``withhold`` names a hypothesis the library does not have.
+        PairingError: ``reference_repeats`` without a reference run paired with the data, or a repeat
+            that is not its campaign again.
     """
     available = library(model_from_data)
     unknown = set(withhold) - {h.name for h in available}
@@ -696,7 +697,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time,
                                              tuple(r for _, r in repeats))
     if reference_repeats and not paired_names:
-        raise ValueError("reference repeats need a reference run of the data's own campaign to pair with "
+        raise PairingError("reference repeats need a reference run of the data's own campaign to pair with "
                          "(and no second run as held-out data)")
     fp, hp = make_problem(fit_chans, lag, hold, base_prior=prior, measured=measured)
     if paired_names:

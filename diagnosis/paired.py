@@ -35,6 +35,10 @@ from qomni.ident.campaign import recorded_settings
 
 from .channels import ChannelData
 
+class PairingError(ValueError):
+    """Runs given as repeats of a paired reference do not pair with the data (names the run)."""
+
+
 #: Segment boundaries of the two runs may differ by this fraction of a cycle (text round-off).
 SEGMENT_TOLERANCE = 0.5
 
@@ -113,4 +117,4 @@ def _same_samples(k_data: np.ndarray, k_ref: np.ndarray) -> tuple[np.ndarray, np
     return order[at], k_ref[order][at] == k_data
 
 
-__all__ = ["SEGMENT_TOLERANCE", "pair_channels", "paired_runs"]
+__all__ = ["PairingError", "SEGMENT_TOLERANCE", "pair_channels", "paired_runs"]

@@ -167,6 +167,7 @@ def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_
     against the single run. A repeat that is not the data's campaign is refused, and so are repeats with
     a reference that is not the twin."""
     from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.diagnosis.paired import PairingError
 
     work, _ = suite
     run, out = work / "ideal", tmp_path / "twin_gap3"
@@ -194,7 +195,7 @@ def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_
     meta = json.loads((other / "metadata.json").read_text())
     meta["settings"]["seed"] += 1
     (other / "metadata.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match="not a run of the data's campaign"):
+    with pytest.raises(PairingError, match="not a run of the data.s campaign"):
         diagnose_paths(run / "identification.json", run, reference_dir=out / "twin_reference",
                        reference_repeats=[other], simulate=False)
     refused = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",

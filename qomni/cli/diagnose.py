@@ -32,6 +32,7 @@ def diagnose(
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
     from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.diagnosis.paired import PairingError
     from qomni.diagnosis.report import reference_parameters, unnamed_further, write_report
 
     repeats: list[Path] = []
@@ -41,8 +42,11 @@ def diagnose(
         fail("--twin-runs repeats the twin's campaign; with --reference RUN there is no twin to repeat")
     elif not reference.is_dir():
         fail(f"--reference {reference} is not a run directory")
-    d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference, reference_repeats=repeats,
-                                       simulate=simulate))
+    try:
+        d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference,
+                                           reference_repeats=repeats, simulate=simulate))
+    except PairingError as exc:      # repeats of a twin whose campaign does not pair with the data's
+        fail(str(exc))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
     for col in ("#", "Effect", "Magnitude", "95 % CI", "p", "Held-out shrink", "beyond base fit", "Channel",
                 "Significant"):
