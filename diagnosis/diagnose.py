@@ -39,7 +39,7 @@ from . import evaluation
 from . import fit as fitting
 from . import where as where_
 from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
-from .paired import PairingError, pair_channels, paired_runs
+from .paired import PairingError, pair_channels, pairing_shift
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
 from .setpoint_timing import LAG, report_lag_ruled_out, timing_by_setpoint
@@ -600,16 +600,18 @@ def _load_run(run_dir, model: IdentificationResult):
 
 
 def _repeat_channels(dirs, data_meta: dict, model: IdentificationResult, cycle_time: float) -> list[tuple]:
-    """(channels, lane-change steering channels) of each repeat of the reference run under ``model``.
+    """(channels, lane-change steering channels, cycle shift) of each repeat of the reference run under
+    ``model``.
 
-    Raises: PairingError: a repeat is not the data's campaign run again (:func:`.paired.paired_runs`)."""
+    Raises: PairingError: a repeat is not the data's campaign run again (:func:`.paired.pairing_shift`)."""
     out = []
     for d in dirs:
         signals, sheet, meta = _load_run(d, model)
-        if not paired_runs(data_meta, meta, cycle_time):
+        shift = pairing_shift(data_meta, meta, cycle_time)
+        if shift is None:
             raise PairingError(f"reference repeat {d} is not a run of the data's campaign (its metadata.json "
-                             "settings or segments differ)")
-        out.append(_channels_and_steering(signals, sheet, model))
+                               "settings or segments differ)")
+        out.append((*_channels_and_steering(signals, sheet, model), shift))
     return out
 
 
@@ -627,7 +629,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         reference_dir: the run the model was identified on, if it is another run than ``data_dir``:
             each hypothesis is then tested beyond the level it already has there (e.g. the
             stick-slip transients of real static friction, which a Stribeck column also fits). Where it
-            ran the data's own campaign (the twin, :func:`.paired.paired_runs`) and no ``holdout_dir``
+            ran the data's own campaign (the twin, :func:`.paired.pairing_shift`) and no ``holdout_dir``
             is given, each torque channel is diagnosed beyond its residual at the same sample
             (:mod:`.paired`).
         reference_repeats: run directories of further runs of the reference's campaign on independent
@@ -690,12 +692,15 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
         ref_plain, _ = make_problem(ref, lag, ref, base_prior=prior, measured=ref_measured)
         ref_problem = ref_plain
-        if hold is None and paired_runs(meta, r_meta, sheet.drive.cycle_time):
+        shift = pairing_shift(meta, r_meta, sheet.drive.cycle_time)
+        if hold is None and shift is not None:
             repeats = _repeat_channels(reference_repeats, meta, model, sheet.drive.cycle_time)
-            fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time, tuple(r for r, _ in repeats))
+            shifts = (shift, *(k for _, _, k in repeats))
+            fit_chans, ref = pair_channels(chans, ref, sheet.drive.cycle_time, tuple(r for r, _, _ in repeats),
+                                           shifts)
             paired_names = [c.name for c in fit_chans if c.paired is not None]
             steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time,
-                                             tuple(r for _, r in repeats))
+                                             tuple(r for _, r, _ in repeats), shifts)
     if reference_repeats and not paired_names:
         raise PairingError("reference repeats need a reference run of the data's own campaign to pair with "
                          "(and no second run as held-out data)")

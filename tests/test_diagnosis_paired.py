@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from qomni.diagnosis.channels import ChannelData
-from qomni.diagnosis.paired import pair_channels, paired_runs
+from qomni.diagnosis.paired import pair_channels, paired_runs, pairing_shift
 
 TS = 0.002
 SETTINGS = {"seed": 7, "steer_duration": 12.0, "lane_changes": 2, "arc_duration": 10.0}
@@ -121,3 +121,34 @@ def test_repeats_of_the_reference_pair_the_data_with_their_mean_residual():
     # the rotation's channel is missing from the last repeat: it stays unpaired
     partial, _ = pair_channels(data, runs[0], TS, (runs[1], runs[3]))
     assert partial[1].paired is None and partial[0].paired is not None
+
+
+def test_a_run_that_recovered_from_a_limit_cycle_pairs_with_its_twin_shifted_by_the_recovery():
+    """A campaign whose steering loop cycled at the torque limit records the held rows as a limit-cycle
+    step and starts again: every later step lies the recovery's duration after the twin's same step (the
+    twin, which probes its dead time from the start, has no recovery). The runs pair with that shift,
+    each data sample against the twin's at the same point of the campaign; a shift that is not the same
+    for every step does not pair."""
+    recovery = 3.176
+    data_segments = [{"name": "limit_cycle", "k": 1, "t_start": 0.0, "t_end": recovery}] + \
+        [{**seg, "t_start": seg["t_start"] + recovery, "t_end": seg["t_end"] + recovery} for seg in SEGMENTS]
+    data = {"settings": SETTINGS, "segments": data_segments}
+    twin = {"settings": SETTINGS, "segments": SEGMENTS}
+    assert pairing_shift(data, twin, TS) == -round(recovery / TS) and paired_runs(data, twin, TS)
+    assert pairing_shift(twin, twin, TS) == 0
+    uneven = [dict(seg) for seg in data_segments]
+    uneven[-1]["t_end"] += 2 * TS                                     # its last step two cycles longer
+    assert pairing_shift({**data, "segments": uneven}, twin, TS) is None
+
+    rng = np.random.default_rng(9)
+    t_twin = SEGMENTS[1]["t_start"] + TS * np.arange(1000)
+    structure = 5.0 * np.sin(2 * np.pi * 0.9 * t_twin)
+    twin_y = structure + 0.05 * rng.standard_normal(len(t_twin))
+    data_y = structure + 0.05 * rng.standard_normal(len(t_twin))
+    d, _ = pair_channels([_channel("steer_left/alpha_l", "torque", t_twin + recovery, data_y)],
+                         [_channel("steer_left/alpha_l", "torque", t_twin, twin_y)], TS,
+                         shifts=(pairing_shift(data, twin, TS),))
+    assert d[0].fitted.all() and np.std(d[0].residual) < 0.1             # sample for sample, the structure gone
+    unshifted, _ = pair_channels([_channel("steer_left/alpha_l", "torque", t_twin + recovery, data_y)],
+                                 [_channel("steer_left/alpha_l", "torque", t_twin, twin_y)], TS)
+    assert unshifted[0].fitted.sum() < len(t_twin) // 2                 # at the same times they hardly overlap
