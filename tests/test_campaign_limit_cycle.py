@@ -32,6 +32,32 @@ def test_a_limit_cycle_is_stopped_probed_and_the_campaign_runs_again_inside_the_
     # the rows the limit cycle held are under its name, not the step it interrupted
     t_restart = next(s["t_start"] for s in meta["segments"] if s["name"] == "steer_left")
     assert signals.time[signals.step == "steer_left"].min() >= t_restart
+    _pairs_with_its_twin_across_the_recovery(tmp_path / "run", meta, signals)
+
+
+def _pairs_with_its_twin_across_the_recovery(run, meta, signals):
+    """The twin of a recovered run probes from the start and never recovers: the runs pair with the
+    recovery's duration as their shift, and at paired samples the steering follows the same trajectory."""
+    from qomni.diagnosis.paired import pairing_shift
+    from qomni.ident.identify import identify_run
+    from qomni.twin import twin_reference
+
+    identify_run(run)
+    twin = twin_reference(run / "identification.json", run, run.parent / "twin")
+    twin_meta = json.loads((twin / "metadata.json").read_text())
+    assert LIMIT_CYCLE_STEP not in [s["name"] for s in twin_meta["segments"]]
+    ts = 0.002
+    recovery = next(s for s in meta["segments"] if s["name"] == LIMIT_CYCLE_STEP)
+    shift = pairing_shift(meta, twin_meta, ts)
+    assert shift == -round((recovery["t_end"] - recovery["t_start"]) / ts) != 0
+    twin_signals = read_signals(twin / "signals.csv")
+    data_rows, twin_rows = signals.step == "steer_left", twin_signals.step == "steer_left"
+    k_data = np.rint(signals.time[data_rows] / ts).astype(int)
+    k_twin = np.rint(twin_signals.time[twin_rows] / ts).astype(int)
+    common, i_data, i_twin = np.intersect1d(k_data + shift, k_twin, return_indices=True)
+    assert len(common) == data_rows.sum()
+    gap = np.abs(signals.alpha[data_rows][i_data] - twin_signals.alpha[twin_rows][i_twin]).max()
+    assert gap < 0.02                       # the same point of the steering excitation, sample for sample
 
 
 @pytest.mark.slow
