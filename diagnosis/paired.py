@@ -56,7 +56,9 @@ def pairing_shift(data_meta: dict, reference_meta: dict, cycle_time: float) -> i
     one shift common to all. Segments of the campaign's limit-cycle recovery
     (:data:`qomni.ident.campaign.LIMIT_CYCLE_STEP`: the rows held when a steering loop cycled at the
     torque limit, before the campaign started again) are not part of the campaign: a run that recovered
-    from one pairs with a twin that did not, its steps shifted by the recovery's duration.
+    from one pairs with a twin that did not, its steps shifted by the recovery's duration. A data run cut
+    short (stopped, aborted) records the segments it completed, the first of the campaign's: it pairs with
+    a reference that went on, over the steps both completed.
 
     Args:
         data_meta, reference_meta: the two runs' ``metadata.json`` contents.
@@ -73,7 +75,7 @@ def pairing_shift(data_meta: dict, reference_meta: dict, cycle_time: float) -> i
     if None not in planned and not math.isclose(float(planned[0]), float(planned[1]), rel_tol=1e-6):
         return None
     a, b = (_campaign_segments(m) for m in (data_meta, reference_meta))
-    if not a or len(a) != len(b):
+    if not a or len(a) > len(b):
         return None
     tol = SEGMENT_TOLERANCE * cycle_time
     shift = float(b[0]["t_start"]) - float(a[0]["t_start"])

@@ -36,18 +36,19 @@ never do.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from qomni.conventions import PARAMETER_NAMES
-from qomni.datasheet import DataSheet
+from qomni.datasheet import DataSheet, DataSheetError
 from qomni.emulator.description import Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.result import IdentificationResult
-from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, datasheet_from_metadata, load_identification,
-                                read_json)
+from qomni.ident.recording import RecordingError
+from qomni.ident.rundir import (METADATA, TWIN_STAMP, RunDirectoryError, datasheet_from_metadata,
+                                load_identification, load_run, read_json)
 
 #: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
 TWIN_REFERENCE = "twin_reference"
@@ -147,12 +148,41 @@ def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
     return datasheet_from_metadata(read_json(run / METADATA), str(run / METADATA))
 
 
+@dataclass(frozen=True)
+class _TwinCampaign:
+    """What every reference run of one model on one data run shares: the twin, its data sheet, and the
+    campaign settings and controller the data's run recorded."""
+    identification: Path
+    sheet: DataSheet
+    description: VehicleDescription
+    parameters: str
+    settings: object
+    recorded: dict
+    controller: object
+
+
+def _twin_campaign(identification: str | Path, data_dir: str | Path,
+                   datasheet: str | Path | None) -> _TwinCampaign:
+    """The twin of ``identification`` and the campaign of ``data_dir``, the data run read and checked
+    whole first: a run cut short or gone bad is refused before the twin's campaign spends its minutes.
+
+    Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: as :func:`_twin_of`."""
+    data_dir = Path(data_dir)
+    _, _, meta = load_run(data_dir)
+    sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
+        datasheet_from_metadata(meta, str(data_dir / METADATA))
+    description, parameters = _twin_of(Path(identification), data_dir, sheet)
+    return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta),
+                         meta.get("settings", {}), _controller_of(meta))
+
+
 def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,
                     datasheet: str | Path | None = None, on_progress=None) -> list[Path]:
     """``runs`` reference runs of the twin (:func:`twin_reference` with run numbers 0 … runs − 1), kept in
     ``cache`` and its siblings ``<cache>_1`` … (:func:`repeat_dir`): the same campaign under independent
     noise draws, whose mean residual is the twin's residual with its noise shrunk by √runs
-    (``qomni.diagnosis.paired``).
+    (``qomni.diagnosis.paired``). The twin is built once for all runs; ``on_progress(done, total, name)``
+    sees each run's steps, ``name`` prefixed by ``run k/runs:`` when there is more than one.
 
     Returns: the run directories, run 0 first.
     Raises:
@@ -160,8 +190,15 @@ def twin_references(identification: str | Path, data_dir: str | Path, cache: str
     """
     if runs < 1:
         raise ValueError(f"the twin needs at least one reference run, not {runs}")
-    return [twin_reference(identification, data_dir, repeat_dir(cache, k), datasheet, on_progress, run=k)
-            for k in range(runs)]
+    campaign = _twin_campaign(identification, data_dir, datasheet)
+    dirs = []
+    for k in range(runs):
+        progress = on_progress
+        if on_progress is not None and runs > 1:
+            def progress(done, total, name, k=k):
+                on_progress(done, total, f"run {k + 1}/{runs}: {name}")
+        dirs.append(_reference_run(campaign, repeat_dir(cache, k), k, progress))
+    return dirs
 
 
 def twin_reference(identification: str | Path, data_dir: str | Path, cache: str | Path,
@@ -175,40 +212,53 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     Raises:
         RunDirectoryError, TwinError, CampaignAborted: as the steps they come from.
     """
+    return _reference_run(_twin_campaign(identification, data_dir, datasheet), Path(cache), run, on_progress)
+
+
+def _reference_run(campaign: _TwinCampaign, cache: Path, run: int, on_progress) -> Path:
+    """Reference run number ``run`` of ``campaign`` in ``cache``: found there when its stamp holds the same
+    twin, settings, controller and noise seed and the run completed, else run afresh in an emptied
+    ``cache`` and stamped once it has ended."""
     from qomni.embedded import embedded_vehicle
     from qomni.ident.campaign import Campaign
+    from qomni.ident.rundir import write_json
 
-    data_dir, cache = Path(data_dir), Path(cache)
-    meta = read_json(data_dir / METADATA)
-    recorded = meta.get("settings", {})
-    settings = _settings_of(meta)
-    sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
-        datasheet_from_metadata(meta, str(data_dir / METADATA))
-    description, parameters = _twin_of(Path(identification), data_dir, sheet)
-    controller = _controller_of(meta)
-    noise_seed = reference_seed(settings.seed, run)
-    key = {"twin": twin_toml(description), "settings": recorded, "controller": asdict(controller),
-           "parameters": parameters, "noise_seed": noise_seed}
+    cache = Path(cache)
+    noise_seed = reference_seed(campaign.settings.seed, run)
+    key = {"twin": twin_toml(campaign.description), "settings": campaign.recorded,
+           "controller": asdict(campaign.controller), "parameters": campaign.parameters,
+           "noise_seed": noise_seed}
     stamp = cache / TWIN_STAMP
-    if (cache / SIGNALS).exists() and stamp.exists() and read_json(stamp) == key:
-        done = read_json(cache / METADATA)
-        if done.get("status") == "complete":
-            return cache
+    if _finished(cache, key):
+        return cache
     if cache.exists():
         import shutil
 
         shutil.rmtree(cache)
     cache.mkdir(parents=True)
     (cache / "twin.toml").write_text(key["twin"])
-    run = Campaign(sheet, cache, settings, controller, source=f"digital twin of {identification}")
+    steps = Campaign(campaign.sheet, cache, campaign.settings, campaign.controller,
+                     source=f"digital twin of {campaign.identification}")
     if on_progress is not None:
-        run.on_progress = on_progress
-    with embedded_vehicle(description, seed=noise_seed, effects=EffectSet.ideal()) as link:
-        run.run(link)
-    from qomni.ident.rundir import write_json
-
+        steps.on_progress = on_progress
+    with embedded_vehicle(campaign.description, seed=noise_seed, effects=EffectSet.ideal()) as link:
+        steps.run(link)
     write_json(stamp, key)
     return cache
+
+
+def _finished(cache: Path, key: dict) -> bool:
+    """Whether ``cache`` holds the finished reference run stamped with ``key``, its files whole: a stamp
+    left beside a recording that has since gone bad (cut short, edited) is no cache hit, and the run is
+    made again."""
+    stamp = cache / TWIN_STAMP
+    try:
+        if not stamp.exists() or read_json(stamp) != key:
+            return False
+        _, _, meta = load_run(cache)
+    except (RunDirectoryError, RecordingError, DataSheetError):
+        return False
+    return meta.get("status") == "complete"
 
 
 def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[VehicleDescription, str]:

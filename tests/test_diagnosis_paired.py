@@ -38,6 +38,17 @@ def test_runs_pair_only_where_the_reference_ran_the_datas_campaign():
     assert not paired_runs({"segments": SEGMENTS}, {"segments": SEGMENTS}, TS)
 
 
+def test_a_run_cut_short_pairs_with_its_twin_over_the_steps_it_completed():
+    """A stopped run records only the segments it completed: the campaign's first ones. Its twin drove the
+    whole campaign; they pair over the data's steps. A reference cut short does not pair with longer data,
+    nor does data whose steps are not the reference's first ones."""
+    data = {"settings": SETTINGS, "segments": SEGMENTS[:-1], "status": "aborted: KeyboardInterrupt: "}
+    twin = {"settings": SETTINGS, "segments": SEGMENTS, "status": "complete"}
+    assert pairing_shift(data, twin, TS) == 0
+    assert not paired_runs({**twin, "segments": SEGMENTS}, {**data}, TS)
+    assert not paired_runs({**data, "segments": SEGMENTS[1:]}, twin, TS)
+
+
 def test_a_run_recorded_before_a_setting_existed_pairs_with_a_twin_that_records_it():
     """The twin records every setting; the data's run only those that existed then, and a setting added
     later defaults to what runs drove before it. A setting the campaign does not know never pairs, nor

@@ -109,28 +109,73 @@ def test_the_twins_reference_run_draws_its_noise_from_its_own_stream(identified_
 
 def test_each_of_the_twins_runs_has_its_own_directory_and_noise_stream(identified_run, tmp_path, monkeypatch,
                                                                        seeds_handed_to_the_emulator):
-    """``twin_references`` runs the same campaign once per run number, run 0 in the cache and each repeat in
-    a sibling, every one on its own noise seed."""
+    """``twin_references`` builds the twin once and runs the same campaign once per run number, run 0 in the
+    cache and each repeat in a sibling, every one on its own noise seed."""
     import qomni.twin
     from qomni.twin import twin_references
 
     run = identified_run
-    calls = []
-    real = qomni.twin.twin_reference
+    calls, built = [], []
+    real_run, real_twin = qomni.twin._reference_run, qomni.twin._twin_of
 
-    def recorded(identification, data_dir, cache, datasheet=None, on_progress=None, run=0):
-        calls.append((Path(cache).name, run))
+    def recorded(campaign, cache, k, on_progress):
+        calls.append((Path(cache).name, k))
         with pytest.raises(_Stop):
-            real(identification, data_dir, cache, datasheet, on_progress, run=run)
+            real_run(campaign, cache, k, on_progress)
         return Path(cache)
 
-    monkeypatch.setattr(qomni.twin, "twin_reference", recorded)
+    def twin_of(*args):
+        built.append(args)
+        return real_twin(*args)
+
+    monkeypatch.setattr(qomni.twin, "_reference_run", recorded)
+    monkeypatch.setattr(qomni.twin, "_twin_of", twin_of)
     dirs = twin_references(run / "identification.json", run, tmp_path / "twin_reference", runs=3)
     assert [d.name for d in dirs] == ["twin_reference", "twin_reference_1", "twin_reference_2"]
     assert calls == [("twin_reference", 0), ("twin_reference_1", 1), ("twin_reference_2", 2)]
     assert seeds_handed_to_the_emulator == [reference_seed(11, k) for k in range(3)]
+    assert len(built) == 1
     with pytest.raises(ValueError, match="at least one"):
         twin_references(run / "identification.json", run, tmp_path / "none", runs=0)
+
+
+def _cut(signals: Path) -> None:
+    """``signals`` cut in the middle of a line, as a recording that stopped being written."""
+    text = signals.read_bytes()
+    signals.write_bytes(text[:len(text) // 2 + 37])
+
+
+def test_a_data_run_cut_short_is_refused_before_the_twin_drives(identified_run, tmp_path,
+                                                                 seeds_handed_to_the_emulator):
+    import shutil
+
+    from qomni.twin import twin_reference
+
+    data = tmp_path / "data"
+    shutil.copytree(identified_run, data)
+    _cut(data / "signals.csv")
+    with pytest.raises(ValueError, match="signals.csv"):
+        twin_reference(identified_run / "identification.json", data, tmp_path / "ref")
+    assert seeds_handed_to_the_emulator == [] and not (tmp_path / "ref").exists()
+
+
+def test_a_cached_reference_whose_recording_went_bad_is_no_cache_hit(identified_run, tmp_path):
+    """The stamp says which twin and campaign a cached run is; the run is reused only while its files
+    read back whole."""
+    import json
+    import shutil
+
+    from qomni.ident.rundir import TWIN_STAMP
+    from qomni.twin import _finished
+
+    cache, key = tmp_path / "twin_reference", {"twin": "a twin", "noise_seed": 5}
+    shutil.copytree(identified_run, cache)
+    (cache / TWIN_STAMP).write_text(json.dumps(key))
+    assert _finished(cache, key) and not _finished(cache, {**key, "noise_seed": 6})
+    _cut(cache / "signals.csv")
+    assert not _finished(cache, key)
+    (cache / TWIN_STAMP).write_text("{")
+    assert not _finished(cache, key)
 
 
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])

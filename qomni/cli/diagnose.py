@@ -77,13 +77,11 @@ def _twin_references(model: Path, data: Path, cache: Path, datasheet: Optional[P
     siblings."""
     from qomni.datasheet import DataSheetError
     from qomni.ident.campaign import CampaignAborted
-    from qomni.twin import TwinError, repeat_dir, twin_reference
+    from qomni.twin import TwinError, twin_references
 
     try:
-        return [guarded(lambda k=k: run_with_progress(
-                    "twin campaign" + (f" {k + 1}/{runs}" if runs > 1 else ""),
-                    lambda cb: twin_reference(model, data, repeat_dir(cache, k), datasheet, on_progress=cb, run=k)))
-                for k in range(runs)]
+        return guarded(lambda: run_with_progress(
+            "twin campaign", lambda cb: twin_references(model, data, cache, runs, datasheet, on_progress=cb)))
     except (TwinError, DataSheetError, CampaignAborted, TypeError) as exc:
         fail(f"cannot run the model's digital twin: {exc}")
 
