@@ -29,9 +29,9 @@ import numpy as np
 from qomni.conventions import P1_NAMES
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
-from qomni.ident.rundir import (IDENTIFICATION_JSON, SIGNALS, file_sha256, load_identification, load_repaired_run,
-                               read_json, read_lifted)
-from qomni.ident.campaign import VALIDATION_STEP
+from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError, file_sha256,
+                               load_identification, load_repaired_run, read_json, read_lifted)
+from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STEP
 from qomni.ident.setpoint_lag import setpoint_lag
 from qomni.ident.torque_timing import model_lag, shift_torque
 
@@ -594,8 +594,18 @@ def _steering_rule_rows(data: list[ChannelData], reference: list[ChannelData], l
 
 def _load_run(run_dir, model: IdentificationResult):
     """A run's signals with the glitch repair and the torque timing of ``model``'s fit (its torque lag
-    applied), its data sheet and its metadata with the glitch report added as ``"spikes"``."""
+    applied), its data sheet and its metadata with the glitch report added as ``"spikes"``.
+
+    Raises: RunDirectoryError: the run completed none of the campaign's steps the diagnosis reads (a decoded
+    log without its run's segments, a run stopped in its first step): there is no channel to diagnose, and
+    "no significant unmodelled effect" would be said of nothing."""
     signals, sheet, meta, spikes = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
+    read = (*IDENTIFICATION_STEPS, VALIDATION_STEP, *ARC_STEPS)
+    if not set(signals.steps()) & set(read):
+        raise RunDirectoryError(
+            f"{Path(run_dir) / METADATA}: the run completed none of the campaign's steps the diagnosis reads "
+            f"({', '.join(read)}; recorded: {', '.join(signals.steps()) or 'none'}); a decoded bus log needs "
+            "its run's metadata.json (qomni decode --metadata)")
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 

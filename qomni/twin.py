@@ -166,9 +166,13 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     """The twin of ``identification`` and the campaign of ``data_dir``, the data run read and checked
     whole first: a run cut short or gone bad is refused before the twin's campaign spends its minutes.
 
-    Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: as :func:`_twin_of`."""
+    Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: it records no
+    campaign settings, or as :func:`_twin_of`."""
     data_dir = Path(data_dir)
     _, _, meta = load_run(data_dir)
+    if not meta.get("settings"):
+        raise TwinError(f"{data_dir / METADATA} records no campaign settings (a decoded bus log without its "
+                        "run's metadata.json?): the twin cannot drive the data's campaign")
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)

@@ -178,6 +178,34 @@ def test_a_cached_reference_whose_recording_went_bad_is_no_cache_hit(identified_
     assert not _finished(cache, key)
 
 
+def test_a_decoded_log_without_its_runs_metadata_has_neither_twin_nor_diagnosis(identified_run, tmp_path,
+                                                                                 seeds_handed_to_the_emulator):
+    """A bus log decoded without its run's metadata.json has no campaign settings and no step names (every
+    row is step 'recorded'): the twin cannot drive its campaign, and the diagnosis has no channel to read.
+    Both say so instead of diagnosing nothing as "no significant unmodelled effect"."""
+    import json
+    import shutil
+
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.ident.rundir import RunDirectoryError
+    from qomni.twin import twin_reference
+
+    data = tmp_path / "decoded"
+    shutil.copytree(identified_run, data)
+    lines = (data / "signals.csv").read_text().splitlines()
+    rows = [line.split(",", 2) for line in lines[1:]]
+    decoded = [lines[0], *(f"{t},recorded,{rest}" for t, _, rest in rows)]
+    (data / "signals.csv").write_text("\n".join(decoded) + "\n")
+    meta = json.loads((data / "metadata.json").read_text())
+    meta = {k: v for k, v in meta.items() if k not in ("settings", "status")} | {"segments": []}
+    (data / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(TwinError, match="records no campaign settings"):
+        twin_reference(identified_run / "identification.json", data, tmp_path / "ref")
+    assert seeds_handed_to_the_emulator == []
+    with pytest.raises(RunDirectoryError, match="none of the campaign's steps"):
+        diagnose_paths(identified_run / "identification.json", data, reference_dir=identified_run)
+
+
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])
 def test_an_unphysical_identification_has_no_twin(name, value):
     result = identification()
