@@ -206,6 +206,39 @@ def test_a_decoded_log_without_its_runs_metadata_has_neither_twin_nor_diagnosis(
         diagnose_paths(identified_run / "identification.json", data, reference_dir=identified_run)
 
 
+def test_a_run_stopped_in_its_lane_change_is_diagnosed_paired_with_its_twin_over_the_steps_it_completed(
+        identified_run, tmp_path):
+    """A campaign stopped during its lane change keeps the rows it recorded, and its metadata lists the
+    segments it completed with an aborted status (as ``Campaign.run`` writes them). Its twin drives the
+    whole campaign; the diagnosis pairs the two over the data's steps and, on the ideal vehicle, names
+    nothing."""
+    import json
+    import shutil
+
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.twin import twin_reference
+
+    data = tmp_path / "stopped"
+    shutil.copytree(identified_run, data)
+    meta = json.loads((data / "metadata.json").read_text())
+    names = [seg["name"] for seg in meta["segments"]]
+    lane = meta["segments"][names.index("lane_change")]
+    stop = 0.5 * (lane["t_start"] + lane["t_end"])
+    meta = {**meta, "segments": meta["segments"][:names.index("lane_change")],
+            "status": "aborted: KeyboardInterrupt: "}
+    (data / "metadata.json").write_text(json.dumps(meta))
+    lines = (data / "signals.csv").read_text().splitlines()
+    kept = [lines[0], *(line for line in lines[1:] if float(line.split(",", 1)[0]) < stop)]
+    (data / "signals.csv").write_text("\n".join(kept) + "\n")
+
+    reference = twin_reference(identified_run / "identification.json", data, tmp_path / "twin_reference")
+    d = diagnose_paths(identified_run / "identification.json", data, reference_dir=reference, simulate=False)
+    assert d.data_run["status"].startswith("aborted")
+    assert {name.split("/")[0] for name in d.paired_channels} == {"steer_left", "steer_right", "straight",
+                                                                  "rotation"}
+    assert d.verdict == "no significant unmodelled effect"
+
+
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])
 def test_an_unphysical_identification_has_no_twin(name, value):
     result = identification()
