@@ -15,7 +15,7 @@ Per cycle it
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import lru_cache
 from typing import Callable
 
@@ -25,6 +25,7 @@ from . import dynamics, kinematics, odometry
 from .control_design import DifferentiatorFilter, LowPassFilter, design_pd, design_pid
 from qomni.datasheet import DataSheet
 from .excitation import ExcitationStep
+from .json_values import json_number
 
 CHASSIS_COORDINATE = {2: "x_ch", 3: "y_ch", 4: "gamma_ch"}
 
@@ -66,6 +67,30 @@ class ControllerSettings:
     # again at the bandwidth it gives (ident.campaign.Campaign). A vehicle that never reaches the limit
     # records exactly what it records without this.
     probe_on_limit_cycle: bool = True
+
+    def __post_init__(self) -> None:
+        """Refuse settings no campaign controller can run with (a run's metadata.json edited, or from
+        another tool).
+
+        Raises: ValueError naming the key: a switch that is not true or false; another setting that is not
+        a finite number, or not > 0 (the dead time the gains are designed for may be 0); a torque margin
+        above 1 or a phase margin of 90° or more."""
+        for f in fields(self):
+            where, value = f"controller.{f.name}", getattr(self, f.name)
+            if f.type in ("bool", bool):
+                if not isinstance(value, bool):
+                    raise ValueError(f"{where} must be true or false, got {value!r}")
+                continue
+            value = json_number(value, where)
+            object.__setattr__(self, f.name, value)
+            if value < 0 or (value == 0 and f.name != "max_dead_time"):
+                raise ValueError(f"{where} must be {'>= 0' if f.name == 'max_dead_time' else '> 0'}, "
+                                 f"got {value!r}")
+        if self.torque_margin > 1:
+            raise ValueError(f"controller.torque_margin must be <= 1 (a fraction of max_torque), "
+                             f"got {self.torque_margin!r}")
+        if self.min_phase_margin >= 90:
+            raise ValueError(f"controller.min_phase_margin must be < 90 deg, got {self.min_phase_margin!r}")
 
 
 @dataclass

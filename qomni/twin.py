@@ -176,8 +176,8 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
-    return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta),
-                         meta.get("settings", {}), _controller_of(meta))
+    return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, data_dir / METADATA),
+                         meta.get("settings", {}), _controller_of(meta, data_dir / METADATA))
 
 
 def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,
@@ -288,7 +288,7 @@ def _twin_of(identification: Path, data_dir: Path, sheet: DataSheet) -> tuple[Ve
                 f"the model as identified is not physical: {exc}")
 
 
-def _settings_of(meta: dict):
+def _settings_of(meta: dict, source: Path):
     """The campaign settings the data's run recorded (``metadata.json`` ``settings``). A run that does not
     record its number of lane changes drove a single one, one that does not record its arcs drove
     none, and one that does not record its excitation criterion used the richness design.
@@ -300,14 +300,17 @@ def _settings_of(meta: dict):
     try:
         return recorded_settings(meta.get("settings", {}))
     except (TypeError, ValueError) as exc:
-        raise TwinError(f"metadata.json settings: {exc}") from exc
+        raise TwinError(f"{source}: {exc}") from exc
 
 
-def _controller_of(meta: dict):
+def _controller_of(meta: dict, source: Path):
     """The campaign controller the data's run used (``metadata.json`` ``controller``), so the twin's
     campaign is the same: with the dead-time probe the twin probes as well but keeps the steering
     bandwidth the data's run recorded. Settings a run did not record keep their defaults, except the probe:
-    a run that does not record it has no probe step."""
+    a run that does not record it has no probe step.
+
+    Raises:
+        TwinError: a recorded controller setting that is not a field, or one the controller refuses."""
     from dataclasses import fields
 
     from qomni.ident.controller import ControllerSettings
@@ -317,8 +320,8 @@ def _controller_of(meta: dict):
     values = {"probe": False, **{k: v for k, v in recorded.items() if k in known}}  # no record: no probe step
     try:
         return ControllerSettings(**{**values, "probe_retunes": False, "probe_on_limit_cycle": False})
-    except TypeError as exc:
-        raise TwinError(f"metadata.json controller: {exc}") from exc
+    except (TypeError, ValueError) as exc:
+        raise TwinError(f"{source}: {exc}") from exc
 
 
 __all__ = ["REFERENCE_NOISE_STREAM", "TWIN_REFERENCE", "TwinError", "reference_seed", "repeat_dir",

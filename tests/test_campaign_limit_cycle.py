@@ -2,6 +2,7 @@
 gains cannot take) stops, probes the dead time and runs again (ident.campaign); a vehicle that never reaches
 the limit records exactly what it records without the watch."""
 import json
+from pathlib import Path
 from types import SimpleNamespace as NS
 
 import numpy as np
@@ -136,6 +137,6 @@ def test_the_twin_repeats_a_recovered_runs_probe_and_bandwidth_and_never_watches
     from qomni.twin import _controller_of
 
     recovered = {"controller": {"steering_bandwidth": 15.9, "probe": True, "probe_on_limit_cycle": True}}
-    c = _controller_of(recovered)
+    c = _controller_of(recovered, Path("run/metadata.json"))
     assert c.probe and not c.probe_retunes and not c.probe_on_limit_cycle and c.steering_bandwidth == 15.9
-    assert not _controller_of({}).probe_on_limit_cycle
+    assert not _controller_of({}, Path("run/metadata.json")).probe_on_limit_cycle

@@ -89,3 +89,18 @@ def test_steering_off_the_mode_2_configuration_takes_the_chassis_column_at_the_r
     np.testing.assert_allclose(h, at_end, rtol=1e-12, atol=1e-12)
     inertia, _ = ctrl._chassis_terms(alpha)
     assert np.isfinite(inertia) and inertia > 0
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("steering_bandwidth", "45", "must be a number"), ("damping", float("nan"), "must be finite"),
+    ("chassis_bandwidth", 0.0, "must be > 0"), ("max_dead_time", -0.01, "must be >= 0"),
+    ("torque_margin", 1.5, "must be <= 1"), ("min_phase_margin", 95.0, "must be < 90"),
+    ("probe", 1, "must be true or false")])
+def test_a_recorded_controller_setting_no_controller_can_run_with_is_refused_by_name(key, value, message):
+    """Controller settings come back from a run's metadata.json (the twin's campaign repeats them): a value
+    that is not a number, not finite or out of its physical range is refused naming the key."""
+    from qomni.ident.controller import ControllerSettings
+
+    with pytest.raises(ValueError, match=f"controller.{key} {message}"):
+        ControllerSettings(**{key: value})
+    assert ControllerSettings(max_dead_time=0.0, steering_bandwidth=20).steering_bandwidth == 20.0

@@ -250,12 +250,16 @@ def test_an_unphysical_identification_has_no_twin(name, value):
 
 def test_the_twin_repeats_the_data_runs_controller_with_its_recorded_steering_bandwidth():
     """A data run that probed its dead time recorded the bandwidth it then used; the twin probes as well (the
-    same campaign, probe step included) but keeps that bandwidth instead of retuning to its own reading."""
-    from qomni.twin import _controller_of
+    same campaign, probe step included) but keeps that bandwidth instead of retuning to its own reading. A
+    recorded value no controller runs with is refused naming the file and key."""
+    from qomni.twin import TwinError, _controller_of
 
-    c = _controller_of({"controller": {"probe": True, "steering_bandwidth": 13.4, "retired_setting": 1}})
+    src = Path("run/metadata.json")
+    c = _controller_of({"controller": {"probe": True, "steering_bandwidth": 13.4, "retired_setting": 1}}, src)
     assert c.probe and c.steering_bandwidth == 13.4 and not c.probe_retunes
-    assert _controller_of({}).steering_bandwidth == 45.0 and not _controller_of({}).probe
+    assert _controller_of({}, src).steering_bandwidth == 45.0 and not _controller_of({}, src).probe
+    with pytest.raises(TwinError, match="run/metadata.json: controller.steering_bandwidth must be a number"):
+        _controller_of({"controller": {"steering_bandwidth": "x"}}, src)
 
 
 @pytest.mark.slow
@@ -263,13 +267,14 @@ def test_the_twin_repeats_the_data_runs_campaign_settings_and_drives_no_arcs_a_r
     from qomni.ident.campaign import CampaignSettings
     from qomni.twin import TwinError, _settings_of
 
-    assert _settings_of({"settings": {"seed": 4, "arc_duration": 10.0}}).arc_duration == 10.0
-    older = _settings_of({"settings": {"seed": 4}})
+    src = Path("run/metadata.json")
+    assert _settings_of({"settings": {"seed": 4, "arc_duration": 10.0}}, src).arc_duration == 10.0
+    older = _settings_of({"settings": {"seed": 4}}, src)
     assert older.arc_duration == 0.0 and older.lane_changes == 1 and older.seed == 4
     assert older.excitation == "richness"           # recorded before the min_cond design existed
-    assert _settings_of({"settings": {**CampaignSettings().__dict__}}) == CampaignSettings()
-    with pytest.raises(TwinError, match="settings"):
-        _settings_of({"settings": {"retired_setting": 1}})
+    assert _settings_of({"settings": {**CampaignSettings().__dict__}}, src) == CampaignSettings()
+    with pytest.raises(TwinError, match="run/metadata.json: .*retired_setting"):
+        _settings_of({"settings": {"retired_setting": 1}}, src)
 
 
 def test_a_model_that_is_not_physical_gets_the_twin_of_its_runs_consistent_estimate(identified_run, tmp_path):
