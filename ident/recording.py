@@ -166,8 +166,8 @@ def _check_order(path: Path, time: np.ndarray) -> None:
     back = np.flatnonzero(np.diff(time) <= 0)
     if len(back):
         i = int(back[0]) + 1
-        raise RecordingError(f"{path}:{i + 2}: time {time[i]!r} s does not increase (previous row "
-                             f"{time[i - 1]!r} s): rows reversed, duplicated or from two runs")
+        raise RecordingError(f"{path}:{i + 2}: time {float(time[i])!r} s does not increase (previous row "
+                             f"{float(time[i - 1])!r} s): rows reversed, duplicated or from two runs")
 
 
 def read_signals(path: str | Path) -> Signals:
