@@ -12,9 +12,10 @@ the lane change's 15.6).
 A torque channel of the data is *paired* where the reference run is paired (:func:`paired_runs`) and the
 twin has the same channel: its residual is then the data's minus the twin's at the same sample of the
 campaign (the same time, or shifted by a limit-cycle recovery only the data's run went through,
-:func:`pairing_shift`; ``ChannelData.paired``), and rows the twin does not have are not fitted. The reference run's own paired
-channels then hold no residual: every hypothesis' reference level there is zero, and the reference level
-of a hypothesis that also acts in unpaired channels comes from those alone, weighted as in the data.
+:func:`pairing_shift`; ``ChannelData.paired``), and rows the twin does not have are not fitted. The
+reference run's own paired channels then hold no residual: every hypothesis' reference level there is
+zero, and the reference level of a hypothesis that also acts in unpaired channels comes from those alone,
+weighted as in the data.
 Kinematic and rolling channels stay unpaired: they are positions measured to within the sensors' LSB, and
 a twin's differently drawn noise would add to them more than its structure removes.
 

@@ -176,8 +176,9 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
         datasheet_from_metadata(meta, str(data_dir / METADATA))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
-    return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, data_dir / METADATA),
-                         meta.get("settings", {}), _controller_of(meta, data_dir / METADATA))
+    source = data_dir / METADATA
+    return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, source),
+                         meta.get("settings", {}), _controller_of(meta, source))
 
 
 def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,
@@ -214,7 +215,9 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
     Returns:
         the run directory of the twin's campaign (signals.csv, metadata.json).
     Raises:
-        RunDirectoryError, TwinError, CampaignAborted: as the steps they come from.
+        RunDirectoryError, RecordingError, DataSheetError: the data run is incomplete or invalid (it is read
+        whole before the twin drives). TwinError: it records no campaign settings, a setting the campaign
+        or its controller refuses, or a model that is not physical. CampaignAborted: the twin's campaign.
     """
     return _reference_run(_twin_campaign(identification, data_dir, datasheet), Path(cache), run, on_progress)
 

@@ -74,8 +74,8 @@ def test_a_vehicle_that_never_reaches_the_limit_records_the_same_with_and_withou
         campaign = Campaign(description.datasheet, run, CampaignSettings.quick(seed=3),
                             ControllerSettings(probe_on_limit_cycle=watch))
         # 4 ms: the loop keeps a few degrees of margin and stays off the limit
-        with embedded_vehicle(description, seed=3, effects=EffectSet.from_dict({"actuator_delay": {"delay": 0.004}})) \
-                as link:
+        delayed = EffectSet.from_dict({"actuator_delay": {"delay": 0.004}})
+        with embedded_vehicle(description, seed=3, effects=delayed) as link:
             meta = campaign.run(link)
         assert "limit_cycles" not in meta
         recorded.append((run / "signals.csv").read_bytes())
