@@ -63,3 +63,37 @@ def test_other_hypotheses_and_unnamed_inclines_are_left_alone():
     unnamed = _candidate(np.array([0.0, 0.01]), significant=False)
     confirm_along_motion([other, unnamed], ROWS)
     assert other.significant and not unnamed.significant and not unnamed.notes
+
+
+#: σ across the straight motion when the arcs yaw the chassis (about 1 mrad on a full campaign).
+SIGMA_ACROSS_ARCS = 1.3e-3
+
+
+def _with_arcs(theta, removed, significant=True):
+    """An incline candidate of a campaign whose arcs determine the slope across the straight motion."""
+    cov = np.diag([SIGMA_ALONG**2, SIGMA_ACROSS_ARCS**2])
+    return NS(hypothesis=NS(name="incline", variant=""), significant=significant, notes=[],
+              evaluation=NS(removed=removed),
+              fit=NS(theta=np.concatenate([np.zeros(3), theta]), theta_cov=np.block(
+                  [[np.eye(3), np.zeros((3, 2))], [np.zeros((2, 3)), cov]])))
+
+
+def test_a_slope_across_the_straight_motion_that_the_arcs_determine_is_named_when_it_explains_most():
+    """A floor sloping sideways to the straight step (uphill at 90°) does work in the arcs: its component
+    across the motion is determined there and named, unless another candidate removes more held-out
+    residual (an off-centre payload fits the same column in the arcs)."""
+    lateral = np.array([1.0e-5, math.sin(0.015)])                       # z = 11.5 across, 0.5 along
+    payload = NS(hypothesis=NS(name="payload", variant=""), significant=True, notes=[],
+                 evaluation=NS(removed=40.0))
+    c = _with_arcs(lateral, removed=250.0)
+    confirm_along_motion([payload, c], ROWS)
+    assert c.significant and "across the best-observed direction" in c.notes[0]
+    c = _with_arcs(lateral, removed=25.0)
+    confirm_along_motion([payload, c], ROWS)
+    assert not c.significant and "another candidate removes more" in c.notes[0]
+    small = _with_arcs(np.array([0.0, 0.5 * RELEVANT]), removed=250.0)   # z = 0.4: a floor's flatness
+    confirm_along_motion([payload, small], ROWS)
+    assert not small.significant and "heading's wander" in small.notes[0]
+    unsure = _with_arcs(np.array([0.0, 2.0 * SIGMA_ACROSS_ARCS]), removed=250.0)    # z = 2, p = 0.05
+    confirm_along_motion([unsure], ROWS)
+    assert not unsure.significant
