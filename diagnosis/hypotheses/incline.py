@@ -45,7 +45,8 @@ def along_motion(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float, floa
     variance of ``cov`` (2×2): the one along which the slope's force does work in the campaign's motion."""
     w, v = np.linalg.eigh(np.asarray(cov, dtype=float)[:2, :2])
     u = v[:, 0]
-    return float(u @ np.asarray(theta, dtype=float)[:2]), float(np.sqrt(max(w[0], 0.0))), float(np.arctan2(u[1], u[0]))
+    component = float(u @ np.asarray(theta, dtype=float)[:2])
+    return component, float(np.sqrt(max(w[0], 0.0))), float(np.arctan2(u[1], u[0]))
 
 
 def _across_std(c) -> float:
@@ -81,7 +82,7 @@ def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
     (sin γ of a few mrad), and anything that yaws the chassis a little while it drives fits that column
     too; its across component's σ is then tens of mrad and its z test fails. The arcs yaw the chassis by
     up to 0.55 rad along their way, so a slope across the straight motion does work there, and the data
-    determine it to about a milliradian. Within an arc an off-centre payload (its path inertia −2κ·s_y
+    determine it to a few milliradians or better. Within an arc an off-centre payload (its path inertia −2κ·s_y
     against the slope's force, which follows κ·x_ch) fits the same column: a payload reads as a slope of
     a few mrad across the motion and a slope as a payload. The one that removes more held-out residual
     is the one named first. A named slope gets a note with both components."""
@@ -94,8 +95,8 @@ def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
         along, std, angle = along_motion(theta, cov)
         p = _z_test(along, std)
         if p < ALPHA and abs(along) >= RELEVANT:
-            c.notes.append(f"slope along the best-observed direction ({math.degrees(angle):.0f}° in the world frame): "
-                           f"{along:.2e} ± {std:.1e} (sin of the angle); across it the data bound it only to "
+            c.notes.append(f"slope along the best-observed direction ({math.degrees(angle):.0f}° in the world "
+                           f"frame): {along:.2e} ± {std:.1e} (sin of the angle); across it the data bound it to "
                            f"± {_across_std(c):.1e}")
             continue
         across, across_std, across_angle = across_motion(theta, cov)

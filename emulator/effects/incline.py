@@ -32,8 +32,9 @@ class Incline(Effect):
     def attach(self, plant: Plant) -> None:
         plant.pb.setGravity(*self.gravity())
 
-    #: A slope within this angle of purely lateral to every straight motion of the campaign (its straight
-    #: step and lane change drive along the world x axis) does almost no work on it and is invisible.
+    #: A slope within this angle of purely lateral to the campaign's straight motions (its straight step and
+    #: lane change drive along the world x axis) does work only in the arcs. The suite's draw leaves these
+    #: directions out so that its recorded draws stay as drawn; they are measured apart (docs/results.md).
     LATERAL_EXCLUSION = math.radians(25.0)
 
     @classmethod
