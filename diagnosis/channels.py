@@ -42,6 +42,8 @@ from qomni.ident.recording import Signals
 from qomni.ident.symbolic import WHEELS
 
 #: Steps with rolling channels (constant mode angles: a fixed basis of redundant constraints).
+#: The campaign steps whose channels the diagnosis reads, where recorded.
+DIAGNOSED_STEPS = (*IDENTIFICATION_STEPS, VALIDATION_STEP, *ARC_STEPS)
 ROLLING_STEPS = ("rotation",)
 #: Coordinates of the lane change (validation step) that become torque channels.
 LANE_CHANGE_COORDINATES = ("x_ch",)
@@ -377,7 +379,7 @@ def channels(signals: Signals, sheet: DataSheet, model: IdentificationResult,
     """
     pose = run_pose(signals, sheet)
     recorded = signals.steps()
-    wanted = steps or [s for s in (*IDENTIFICATION_STEPS, VALIDATION_STEP, *ARC_STEPS) if s in recorded]
+    wanted = steps or [s for s in DIAGNOSED_STEPS if s in recorded]
     out: list[ChannelData] = []
     for step in wanted:
         mask = signals.step == step

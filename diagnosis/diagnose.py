@@ -31,14 +31,14 @@ from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError, file_sha256,
                                load_identification, load_repaired_run, read_json, read_lifted)
-from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STEP
+from qomni.ident.campaign import VALIDATION_STEP
 from qomni.ident.setpoint_lag import setpoint_lag
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
 from . import fit as fitting
 from . import where as where_
-from .channels import LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
+from .channels import DIAGNOSED_STEPS, LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
 from .paired import PairingError, pair_channels, pairing_shift
 from .hypotheses import Hypothesis, generic, library, plausible
 from .hypotheses.base import RuleRows
@@ -600,12 +600,11 @@ def _load_run(run_dir, model: IdentificationResult):
     log without its run's segments, a run stopped in its first step): there is no channel to diagnose, and
     "no significant unmodelled effect" would be said of nothing."""
     signals, sheet, meta, spikes = load_repaired_run(run_dir, repair=model.spikes.get("repaired", True))
-    read = (*IDENTIFICATION_STEPS, VALIDATION_STEP, *ARC_STEPS)
-    if not set(signals.steps()) & set(read):
+    if not set(signals.steps()) & set(DIAGNOSED_STEPS):
         raise RunDirectoryError(
             f"{Path(run_dir) / METADATA}: the run completed none of the campaign's steps the diagnosis reads "
-            f"({', '.join(read)}; recorded: {', '.join(signals.steps()) or 'none'}); a decoded bus log needs "
-            "its run's metadata.json (qomni decode --metadata)")
+            f"({', '.join(DIAGNOSED_STEPS)}; recorded: {', '.join(signals.steps()) or 'none'}); a decoded bus "
+            "log needs its run's metadata.json (qomni decode --metadata)")
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -49,6 +50,10 @@ from qomni.ident.result import IdentificationResult
 from qomni.ident.recording import RecordingError
 from qomni.ident.rundir import (METADATA, TWIN_STAMP, RunDirectoryError, datasheet_from_metadata,
                                 load_identification, load_run, read_json)
+
+if TYPE_CHECKING:                   # the campaign is imported where a twin runs, not on import
+    from qomni.ident.campaign import CampaignSettings
+    from qomni.ident.controller import ControllerSettings
 
 #: Folder of a diagnosis' output where the twin's reference campaign is kept (and found again).
 TWIN_REFERENCE = "twin_reference"
@@ -156,9 +161,9 @@ class _TwinCampaign:
     sheet: DataSheet
     description: VehicleDescription
     parameters: str
-    settings: object
+    settings: CampaignSettings
     recorded: dict
-    controller: object
+    controller: ControllerSettings
 
 
 def _twin_campaign(identification: str | Path, data_dir: str | Path,
@@ -169,16 +174,16 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: it records no
     campaign settings, or as :func:`_twin_of`."""
     data_dir = Path(data_dir)
+    source = data_dir / METADATA
     _, _, meta = load_run(data_dir)
     if not meta.get("settings"):
-        raise TwinError(f"{data_dir / METADATA} records no campaign settings (a decoded bus log without its "
-                        "run's metadata.json?): the twin cannot drive the data's campaign")
+        raise TwinError(f"{source} records no campaign settings (a decoded bus log without its run's "
+                        "metadata.json?): the twin cannot drive the data's campaign")
     sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
-        datasheet_from_metadata(meta, str(data_dir / METADATA))
+        datasheet_from_metadata(meta, str(source))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
-    source = data_dir / METADATA
     return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, source),
-                         meta.get("settings", {}), _controller_of(meta, source))
+                         meta["settings"], _controller_of(meta, source))
 
 
 def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,

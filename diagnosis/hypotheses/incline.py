@@ -39,27 +39,26 @@ def _incline_magnitude(theta, cov, nonlinear, sheet):
 RELEVANT = math.sin(1e-3)
 
 
+def _principal(theta: np.ndarray, cov: np.ndarray, k: int) -> tuple[float, float, float]:
+    """The slope's component along the eigenvector ``k`` of ``cov`` (2×2, eigenvalues ascending): (component,
+    its σ, that direction's angle in the world frame [rad])."""
+    w, v = np.linalg.eigh(np.asarray(cov, dtype=float)[:2, :2])
+    u = v[:, k]
+    component = float(u @ np.asarray(theta, dtype=float)[:2])
+    return component, float(np.sqrt(max(w[k], 0.0))), float(np.arctan2(u[1], u[0]))
+
+
 def along_motion(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float, float]:
     """The fitted slope (sin_x, sin_y) along the direction the data determine best: (component, its σ,
     that direction's angle in the world frame [rad]). The direction is the eigenvector of the smallest
     variance of ``cov`` (2×2): the one along which the slope's force does work in the campaign's motion."""
-    w, v = np.linalg.eigh(np.asarray(cov, dtype=float)[:2, :2])
-    u = v[:, 0]
-    component = float(u @ np.asarray(theta, dtype=float)[:2])
-    return component, float(np.sqrt(max(w[0], 0.0))), float(np.arctan2(u[1], u[0]))
-
-
-def _across_std(c) -> float:
-    return float(np.sqrt(max(np.linalg.eigvalsh(np.asarray(c.fit.theta_cov, dtype=float)[-2:, -2:])[1], 0.0)))
+    return _principal(theta, cov, 0)
 
 
 def across_motion(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float, float]:
     """The fitted slope (sin_x, sin_y) across the best-observed direction: (component, its σ, that
     direction's angle in the world frame [rad]), the eigenvector of the largest variance of ``cov`` (2×2)."""
-    w, v = np.linalg.eigh(np.asarray(cov, dtype=float)[:2, :2])
-    u = v[:, 1]
-    component = float(u @ np.asarray(theta, dtype=float)[:2])
-    return component, float(np.sqrt(max(w[1], 0.0))), float(np.arctan2(u[1], u[0]))
+    return _principal(theta, cov, 1)
 
 
 def _z_test(value: float, std: float) -> float:
@@ -82,9 +81,9 @@ def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
     (sin γ of a few mrad), and anything that yaws the chassis a little while it drives fits that column
     too; its across component's σ is then tens of mrad and its z test fails. The arcs yaw the chassis by
     up to 0.55 rad along their way, so a slope across the straight motion does work there, and the data
-    determine it to a few milliradians or better. Within an arc an off-centre payload (its path inertia −2κ·s_y
-    against the slope's force, which follows κ·x_ch) fits the same column: a payload reads as a slope of
-    a few mrad across the motion and a slope as a payload. The one that removes more held-out residual
+    determine it to a few milliradians or better. Within an arc an off-centre payload (its path inertia
+    −2κ·s_y against the slope's force, which follows κ·x_ch) fits the same column: a payload reads as a
+    slope of a few mrad across the motion and a slope as a payload. The one that removes more held-out residual
     is the one named first. A named slope gets a note with both components."""
     from ..fit import ALPHA           # the fitting machinery imports this package: import at use
 
@@ -93,13 +92,13 @@ def confirm_along_motion(candidates: list, rows: RuleRows) -> None:
             continue
         theta, cov = c.fit.theta[-2:], np.asarray(c.fit.theta_cov)[-2:, -2:]
         along, std, angle = along_motion(theta, cov)
+        across, across_std, across_angle = across_motion(theta, cov)
         p = _z_test(along, std)
         if p < ALPHA and abs(along) >= RELEVANT:
             c.notes.append(f"slope along the best-observed direction ({math.degrees(angle):.0f}° in the world "
                            f"frame): {along:.2e} ± {std:.1e} (sin of the angle); across it the data bound it to "
-                           f"± {_across_std(c):.1e}")
+                           f"± {across_std:.1e}")
             continue
-        across, across_std, across_angle = across_motion(theta, cov)
         p_across = _z_test(across, across_std)
         c.significant = False
         if p_across >= ALPHA or abs(across) < RELEVANT:
