@@ -21,6 +21,14 @@ MIN_SPAN = 2.0
 ROW_TOLERANCE = 2
 #: … or this share of them, where time stamps jitter (a bus logger's): a file cut short loses far more.
 ROW_SHARE_TOLERANCE = 0.005
+#: Largest departure of a row-to-row time step from the recording's median spacing, as its share: a
+#: logger's time stamps jitter by a few per cent of T_s; a missing row doubles the step.
+MAX_SPACING_JITTER = 0.5
+#: Share by which a torque actual may read above the drive's peak torque: its measurement noise
+#: (the emulator's: 0.01 N m against 6 N m).
+TORQUE_OVER_MAX = 0.1
+#: Angle (rad) a steering sensor may read beyond the stops: its noise, a few LSB of a 14-bit sensor.
+ANGLE_OVER_LIMIT = 0.05
 #: Least R² of a drive's position change over a cycle against T_s times its velocity actual. The
 #: velocity actual (0x606C) is the position's (0x6064) rate; a drive's own filtering and time stamping
 #: leave R² near 1 (the emulator's drives: 1.000), a frozen encoder 0, a reversed polarity −3.
@@ -39,7 +47,8 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
     before. Tolerance: :data:`ROW_TOLERANCE` rows or :data:`ROW_SHARE_TOLERANCE` of them.
 
     Raises:
-        RecordingError: the rows are not ``cycle_time`` apart (median spacing, 1 %), a step has fewer or
+        RecordingError: the rows are not ``cycle_time`` apart (median spacing, 1 %), two consecutive rows
+            are not one spacing apart (:func:`_check_spacing`: a row missing), a step has fewer or
             more rows than that, or rows of another step inside it (names the step, its time span and
             the rows found).
     """
@@ -51,6 +60,8 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
         if abs(spacing - cycle_time) > 0.01 * cycle_time:
             raise RecordingError(f"{path}: rows are {spacing:.6g} s apart, the data sheet's cycle time is "
                                  f"{cycle_time:.6g} s: the recording and its metadata do not belong together")
+        step = np.asarray(signals.step)
+        _check_spacing(time, dt, step[1:] == step[:-1], spacing, path)
         # the recording's own period: a master's clock a little off the nominal T_s (or a logger's time
         # stamps) changes how many rows a long step holds, not whether it is complete
         period = float(np.mean(dt[dt < 1.5 * spacing]))
@@ -73,6 +84,50 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
         if others:
             raise RecordingError(f"{path}: rows of {', '.join(others)} inside step '{seg['name']}' "
                                  f"({t0:.3f}–{t1:.3f} s): the recording does not match its metadata")
+
+
+def _check_spacing(time: np.ndarray, dt: np.ndarray, within: np.ndarray, spacing: float, path: str) -> None:
+    """Consecutive rows of one step (``within``: (N − 1,) bool, row i + 1 of row i's step) one SYNC apart:
+    within :data:`MAX_SPACING_JITTER` of the recording's median spacing. The recorder writes a row every
+    cycle (a missed TPDO as the value held from the cycle before), so a longer step is a row missing
+    (deleted, or a decoded log's cycle skipped as incomplete) and a shorter one a time off the SYNC grid;
+    either puts the step's velocities and accelerations at the wrong time. A count per step cannot see a
+    few such rows (:data:`ROW_SHARE_TOLERANCE`). Between two steps a recording may lack the steps it was
+    cut down to leave out; each step is filtered and fitted on its own rows."""
+    off = np.flatnonzero(within & (np.abs(dt - spacing) > MAX_SPACING_JITTER * spacing))
+    if not len(off):
+        return
+    i = int(off[0])
+    cycles = dt[i] / spacing
+    lost = int(round(cycles)) - 1
+    what = (f"{lost} row(s) missing before it" if lost >= 1 and abs(cycles - (lost + 1)) <= 0.25
+            else "its time off the SYNC grid")                 # a whole number of cycles, or not
+    raise RecordingError(f"{path}:{i + 3}: time {float(time[i + 1])!r} s follows {float(time[i])!r} s, "
+                         f"the rows are {spacing:.6g} s apart: {what} ({len(off)} such place(s) in the file; "
+                         "rows deleted, or cycles a decode skipped as incomplete)")
+
+
+def check_ranges(signals: Signals, max_torque: float, steering_limit: float, path: str) -> None:
+    """Every torque actual within the drives' peak torque and every steering angle within the stops.
+
+    A drive limits its torque to ``max_torque`` (0x6072, motor side); its torque actual can read above it
+    only by measurement noise (:data:`TORQUE_OVER_MAX`). The steering units turn between mechanical stops
+    at ±``steering_limit``; the sensor can read beyond them only by its noise (:data:`ANGLE_OVER_LIMIT`).
+    A value past either is another unit (per mille not converted, degrees) or another vehicle's data
+    sheet, which would identify a vehicle hundreds of times heavier without a word.
+
+    Raises:
+        RecordingError: names the line, the column, the value and the limit."""
+    checks = [(f"motor_torque_{w}", signals.motor_torque[:, j], (1 + TORQUE_OVER_MAX) * max_torque,
+               f"the data sheet's max_torque {max_torque:g} N m (motor side)") for j, w in enumerate(WHEELS)]
+    checks += [(f"alpha_{side}", signals.alpha[:, j], steering_limit + ANGLE_OVER_LIMIT,
+                f"the steering stops at ±{steering_limit:g} rad") for j, side in enumerate("lr")]
+    for column, values, bound, limit in checks:
+        over = np.flatnonzero(np.abs(values) > bound)
+        if len(over):
+            i = int(over[0])
+            raise RecordingError(f"{path}:{i + 2}: column '{column}' is {float(values[i])!r}, beyond {limit} "
+                                 f"({len(over)} row(s)): another unit, or a data sheet of another vehicle")
 
 
 def velocity_conventions(v: np.ndarray) -> np.ndarray:
@@ -137,5 +192,5 @@ def check_drives(signals: Signals, path: str) -> None:
                                      "expected): a reversed torque polarity or another drive's value")
 
 
-__all__ = ["check_coverage", "check_drives", "velocity_conventions", "MIN_SPAN", "ROW_TOLERANCE",
+__all__ = ["check_coverage", "check_drives", "check_ranges", "velocity_conventions", "MIN_SPAN", "ROW_TOLERANCE",
            "MIN_POSITION_VELOCITY_R2", "MIN_TORQUE_CORRELATION"]

@@ -170,13 +170,23 @@ def _check_order(path: Path, time: np.ndarray) -> None:
                              f"{float(time[i - 1])!r} s): rows reversed, duplicated or from two runs")
 
 
+def _check_modes(path: Path, k: np.ndarray) -> None:
+    """Column k holds the paper's motion mode, 1 to 4, or 0 on the rows of a decoded log outside any
+    step of its metadata (step ``recorded``)."""
+    bad = np.flatnonzero((k != np.round(k)) | (k < 0) | (k > 4))
+    if len(bad):
+        i = int(bad[0])
+        raise RecordingError(f"{path}:{i + 2}: column 'k [-]' is {float(k[i])!r}, not a motion mode (1 to 4, or 0 "
+                             "outside the campaign's steps)")
+
+
 def read_signals(path: str | Path) -> Signals:
     """Read ``signals.csv``.
 
     Raises:
         FileNotFoundError: no such file.
-        RecordingError: wrong header, a short row, a value that is not a finite number or time not
-            increasing (file and line given).
+        RecordingError: wrong header, a short row, a value that is not a finite number, time not
+            increasing or a motion mode k that is not one (file and line given).
     """
     path = Path(path)
     with open(path, newline="") as f:
@@ -211,6 +221,7 @@ def read_signals(path: str | Path) -> Signals:
             numeric[line - 2, col - 1 if col > 1 else 0] = value
     col = {name: i - 1 if i > 1 else 0 for i, (name, _) in enumerate(COLUMNS)}
     _check_order(path, numeric[:, col["time"]])
+    _check_modes(path, numeric[:, col["k"]])
 
     def block(prefix: str) -> np.ndarray:
         return numeric[:, [col[f"{prefix}_{w}"] for w in WHEELS]]

@@ -19,7 +19,7 @@ from qomni.datasheet import DataSheet, DataSheetError
 
 from .result import IdentificationResult
 from .recording import Signals, read_signals
-from .plausibility import check_coverage, check_drives
+from .plausibility import check_coverage, check_drives, check_ranges
 
 METADATA = "metadata.json"
 #: The run-directory format this version writes and reads (metadata.json ``format``).
@@ -63,16 +63,34 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object's pairs as a dict, refusing a key given twice (``json`` would keep the last)."""
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
 def read_json(path: Path) -> dict:
     """A JSON object from ``path``.
 
     Raises:
-        RunDirectoryError: the file is missing, truncated, not JSON or not an object (file and position).
+        RunDirectoryError: the file is missing, truncated, not JSON, not an object, or gives a key twice in
+            one object (file and position or key).
     """
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(), object_pairs_hook=_unique_keys)
     except FileNotFoundError:
         raise RunDirectoryError(f"{path} does not exist") from None
+    except _DuplicateKey as exc:
+        raise RunDirectoryError(f"{path}: key {exc.args[0]!r} appears twice in one object; which value holds "
+                                "is not defined (an edited file?)") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise RunDirectoryError(f"{path}: not valid JSON ({exc}); a truncated or edited file?") from None
     if not isinstance(data, dict):
@@ -94,9 +112,12 @@ def completed_steps(meta: dict, source: str) -> list[dict]:
     with finite, ordered times.
 
     Raises:
-        RunDirectoryError: the list or an entry is malformed (file and entry named).
+        RunDirectoryError: no list, or the list or an entry is malformed (file and entry named).
     """
-    segments = meta.get("segments", [])
+    if "segments" not in meta:
+        raise RunDirectoryError(f"{source}: no 'segments' (the steps the campaign completed, [] for a decoded "
+                                "log): without them no step's rows can be checked complete")
+    segments = meta["segments"]
     if not isinstance(segments, list):
         raise RunDirectoryError(f"{source}: 'segments' must be a list")
     out = []
@@ -133,8 +154,6 @@ def require_complete(meta: dict, steps, source: str) -> None:
     Raises:
         RunDirectoryError: a step is not among the completed segments (names the run's status).
     """
-    if "segments" not in meta:
-        return
     done = {seg["name"] for seg in completed_steps(meta, source)}
     missing = [name for name in steps if name not in done]
     if missing:
@@ -148,7 +167,8 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
 
     Raises:
         RunDirectoryError: a file is missing; RecordingError/DataSheetError: a file is invalid, signals.csv
-        lacks rows of a step the metadata says completed, or a drive's signals are dead or disagree
+        lacks rows (of a step the metadata says completed, or between two rows), a drive's signals are
+        dead or disagree, or a torque or steering angle lies beyond the data sheet's limits
         (:mod:`.plausibility`).
     """
     run_dir = Path(run_dir)
@@ -161,6 +181,7 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     check_coverage(signals, completed_steps(meta, str(run_dir / METADATA)), sheet.drive.cycle_time,
                    str(run_dir / SIGNALS))
     check_drives(signals, str(run_dir / SIGNALS))
+    check_ranges(signals, sheet.drive.max_torque, sheet.geometry.steering_limit, str(run_dir / SIGNALS))
     return complete_rows(signals, meta, str(run_dir / METADATA)), sheet, meta
 
 

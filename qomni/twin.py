@@ -48,8 +48,8 @@ from qomni.emulator.description import Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.result import IdentificationResult
 from qomni.ident.recording import RecordingError
-from qomni.ident.rundir import (METADATA, TWIN_STAMP, RunDirectoryError, datasheet_from_metadata,
-                                load_identification, load_run, read_json)
+from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, RunDirectoryError, datasheet_from_metadata,
+                                file_sha256, load_identification, load_run, read_json)
 
 if TYPE_CHECKING:                   # the campaign is imported where a twin runs, not on import
     from qomni.ident.campaign import CampaignSettings
@@ -255,17 +255,25 @@ def _reference_run(campaign: _TwinCampaign, cache: Path, run: int, on_progress) 
         steps.on_progress = on_progress
     with embedded_vehicle(campaign.description, seed=noise_seed, effects=EffectSet.ideal()) as link:
         steps.run(link)
-    write_json(stamp, key)
+    write_json(stamp, _stamp(cache, key))
     return cache
 
 
+def _stamp(cache: Path, key: dict) -> dict:
+    """``key`` and the SHA-256 of the run's recording as it was written (``recording``), so that a file
+    edited since is told apart from the one the stamp vouches for.
+
+    Raises: RunDirectoryError: a file of the recording is missing."""
+    return {**key, "recording": {name: file_sha256(cache / name) for name in (SIGNALS, METADATA)}}
+
+
 def _finished(cache: Path, key: dict) -> bool:
-    """Whether ``cache`` holds the finished reference run stamped with ``key``, its files whole: a stamp
-    left beside a recording that has since gone bad (cut short, edited) is no cache hit, and the run is
-    made again."""
+    """Whether ``cache`` holds the finished reference run stamped with ``key``, its files whole and as
+    written: a stamp left beside a recording that has since gone bad (cut short, edited) is no cache hit,
+    and the run is made again."""
     stamp = cache / TWIN_STAMP
     try:
-        if not stamp.exists() or read_json(stamp) != key:
+        if not stamp.exists() or read_json(stamp) != _stamp(cache, key):
             return False
         _, _, meta = load_run(cache)
     except (RunDirectoryError, RecordingError, DataSheetError):

@@ -30,7 +30,7 @@ def session(tmp_path_factory):
     """One lock-step session recorded in both formats; the client's measurements as reference."""
     tmp = tmp_path_factory.mktemp("rec")
     spec = f"virtual:hil-decode-{uuid.uuid4().hex[:8]}"
-    plant = FakePlant()
+    plant = FakePlant(alpha=(0.3, -1.2))     # within the steering stops: the decoded run is read as a vehicle's
     logs = [tmp / "bus.blf", tmp / "bus.log"]
     reference = []
     with VehicleServer(plant, spec), VehicleClient(spec, encoder_increments=INCREMENTS,

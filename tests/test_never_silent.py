@@ -183,6 +183,82 @@ def test_a_signals_file_cut_short_of_its_metadata_is_refused_naming_the_step(run
     assert result.exit_code == 2 and "cut short" in result.output and "Traceback" not in result.output
 
 
+def _rows_of(run: Path, step: str) -> list[int]:
+    """Line indices (0 = header) of ``step``'s rows in the run's signals.csv."""
+    lines = (run / "signals.csv").read_text().splitlines()
+    return [i for i, line in enumerate(lines) if line.split(",")[1] == step]
+
+
+def test_rows_missing_inside_a_step_are_refused_naming_the_line(run_dir):
+    # 30 rows of a 12 s step are 0.25 %, within the count's tolerance; each shifts every later acceleration
+    # of the step by a cycle, and took m_ch 11 % off on a full campaign
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    first = _rows_of(run_dir, "rotation")[100]
+    (run_dir / "signals.csv").write_text("\n".join(lines[:first] + lines[first + 30:]) + "\n")
+    with pytest.raises(RecordingError, match=rf"signals.csv:{first + 1}: time .* follows .*: 30 row\(s\) "
+                                             "missing before it"):
+        load_run(run_dir)
+    result = _cli("identify", run_dir)
+    assert result.exit_code == 2 and "missing before it" in result.output and "Traceback" not in result.output
+
+
+def test_a_row_off_the_sync_grid_is_refused(run_dir):
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    at = _rows_of(run_dir, "straight")[50]
+    cells = lines[at].split(",")
+    cells[0] = repr(float(cells[0]) + 0.0011)
+    lines[at] = ",".join(cells)
+    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=rf"signals.csv:{at + 1}: .* its time off the SYNC grid"):
+        load_run(run_dir)
+
+
+def test_a_recording_cut_down_to_some_steps_still_reads(run_dir):
+    # the fixture holds the straight and the rotation of a run, the steps between them left out: rows of two
+    # steps seconds apart are no missing rows of either
+    assert {"straight", "rotation"} <= set(load_run(run_dir)[0].step)
+
+
+@pytest.mark.parametrize("column, change, message", [
+    ("motor_torque_fl [N m motor]", lambda v: 1000 * v, r"column 'motor_torque_fl' is .* beyond the data sheet's "
+                                                        r"max_torque 6 N m \(motor side\)"),
+    ("alpha_r [rad]", lambda v: 180 / np.pi * v + 100, r"column 'alpha_r' is .* beyond the steering stops"),
+])
+def test_torques_and_angles_beyond_the_vehicles_limits_are_refused(run_dir, column, change, message):
+    # per mille never converted, or degrees: the fit would take them for a vehicle hundreds of times heavier
+    _edit_column(run_dir, column, change)
+    with pytest.raises(RecordingError, match=message):
+        load_run(run_dir)
+
+
+def test_metadata_without_its_segments_is_refused(run_dir):
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    meta.pop("segments")
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(RunDirectoryError, match=r"metadata.json: no 'segments'"):
+        load_run(run_dir)
+    with pytest.raises(RunDirectoryError, match=r"metadata.json: no 'segments'"):
+        identify_run(run_dir)
+
+
+def test_a_key_given_twice_in_a_json_file_is_refused(run_dir):
+    text = (run_dir / "metadata.json").read_text()
+    (run_dir / "metadata.json").write_text(text.replace('"status"', '"status": "complete", "status"', 1))
+    with pytest.raises(RunDirectoryError, match=r"metadata.json: key 'status' appears twice"):
+        load_run(run_dir)
+
+
+@pytest.mark.parametrize("value", ["2.5", "7", "-1"])
+def test_a_motion_mode_that_is_not_one_is_refused(run_dir, value):
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[2] = value
+    lines[10] = ",".join(cells)
+    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=rf"signals.csv:11: column 'k \[-\]' is {float(value)!r}"):
+        read_signals(run_dir / "signals.csv")
+
+
 def test_a_complete_step_under_a_drifting_jittery_clock_is_complete():
     # a master whose SYNC period is 0.3 % off the nominal 2 ms, time stamps jittering by 50 µs: 30000 rows
     # over the step's 60.2 s are all there; two thirds of them are not
@@ -322,6 +398,33 @@ def test_out_that_is_a_file_and_a_negative_seed_are_refused(tmp_path):
     assert result.exit_code == 2 and "is a file" in " ".join(result.output.split())   # a long path wraps
     result = _cli("campaign", "--out", tmp_path / "run", "--seed", "-1")
     assert result.exit_code == 2 and not (tmp_path / "run").exists()
+
+
+def test_paths_of_the_wrong_kind_are_refused_without_a_traceback(run_dir, tmp_path):
+    (tmp_path / "file").write_text("")
+    result = _cli("diagnose", "--model", run_dir, "--data", run_dir, "--out", tmp_path / "file")
+    assert result.exit_code == 2 and "is a file" in " ".join(result.output.split())
+    result = _cli("twin", run_dir, "--out", tmp_path)
+    assert result.exit_code == 2 and "is a directory" in " ".join(result.output.split())
+    result = _cli("twin", run_dir, "--out", tmp_path / "nowhere" / "twin.toml")
+    assert result.exit_code == 2 and "does not exist" in " ".join(result.output.split())
+    assert not list(tmp_path.glob(".*.tmp"))
+    (run_dir / "signals.csv").unlink()
+    (run_dir / "signals.csv").mkdir()
+    result = _cli("identify", run_dir)
+    assert result.exit_code == 2 and "Is a directory" in " ".join(result.output.split())
+
+
+def test_force_keeps_the_old_run_when_the_new_campaigns_inputs_are_refused(run_dir, tmp_path):
+    bad = tmp_path / "bad.toml"                    # a valid data sheet, an emulator body that is not physical
+    text = PROTOTYPE.read_text()
+    assert "contact_stiffness = " in text
+    bad.write_text("\n".join("contact_stiffness = -1.0" if line.startswith("contact_stiffness")
+                             else line for line in text.splitlines()) + "\n")
+    for args in (("--vehicle", bad), ("--excitation", "bogus"), ("--torque-lag", "nan")):
+        result = _cli("campaign", "--quick", "--force", "--out", run_dir, *args)
+        assert result.exit_code == 2 and "Traceback" not in result.output, args
+        assert (run_dir / "signals.csv").exists() and (run_dir / "identification.json").exists(), args
 
 
 def test_a_bad_bus_is_refused_before_anything_is_created(tmp_path):

@@ -161,17 +161,28 @@ def test_a_data_run_cut_short_is_refused_before_the_twin_drives(identified_run, 
 
 def test_a_cached_reference_whose_recording_went_bad_is_no_cache_hit(identified_run, tmp_path):
     """The stamp says which twin and campaign a cached run is; the run is reused only while its files
-    read back whole."""
+    read back whole and as they were written: a recording edited into another valid one is no hit."""
     import json
     import shutil
 
     from qomni.ident.rundir import TWIN_STAMP
-    from qomni.twin import _finished
+    from qomni.twin import _finished, _stamp
 
     cache, key = tmp_path / "twin_reference", {"twin": "a twin", "noise_seed": 5}
     shutil.copytree(identified_run, cache)
     (cache / TWIN_STAMP).write_text(json.dumps(key))
+    assert not _finished(cache, key)                            # a stamp that vouches for no recording
+    (cache / TWIN_STAMP).write_text(json.dumps(_stamp(cache, key)))
     assert _finished(cache, key) and not _finished(cache, {**key, "noise_seed": 6})
+    signals = cache / "signals.csv"
+    written = signals.read_bytes()
+    header, first, *rest = written.decode().splitlines()
+    cells = first.split(",")
+    cells[-1] = repr(float(cells[-1]) * 1.3)                    # one commanded torque, still a valid file
+    signals.write_text("\n".join([header, ",".join(cells), *rest]) + "\n")
+    assert not _finished(cache, key)
+    signals.write_bytes(written)
+    assert _finished(cache, key)
     _cut(cache / "signals.csv")
     assert not _finished(cache, key)
     (cache / TWIN_STAMP).write_text("{")

@@ -1,6 +1,7 @@
 """``qomni campaign``, ``single-axis``, ``identify``, ``validate`` and ``compare``."""
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -88,16 +89,18 @@ def campaign(
     if effects is not None and bus is not None:
         fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
     effect_set = load_effects(effects)
-    prepare_out(out, CAMPAIGN_FILES + (SINGLE_AXIS_FILES if single_axis else ()), force)
-    started = time.perf_counter()
-    if single_axis:
-        _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
+    if bus is None:
+        load_description(vehicle)          # the embedded emulator's vehicle, checked before --force removes a run
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     if excitation is not None:
         try:
             settings = replace(settings, excitation=excitation)
         except ValueError as exc:
             fail(str(exc))
+    prepare_out(out, CAMPAIGN_FILES + (SINGLE_AXIS_FILES if single_axis else ()), force)
+    started = time.perf_counter()
+    if single_axis:
+        _single_axis(out, bus, vehicle, sheet, seed, gui, effect_set)
     source = bus or "embedded emulator (virtual CAN bus)"
     try:
         controller = ControllerSettings(probe=dead_time_probe, probe_on_limit_cycle=limit_cycle_probe)
@@ -282,9 +285,12 @@ def _identify_options(estimator: str, torque_lag: str) -> str | float:
     if torque_lag == "auto":
         return torque_lag
     try:
-        return float(torque_lag)
+        lag = float(torque_lag)
     except ValueError:
-        fail(f"--torque-lag must be 'auto' or a number of seconds, got {torque_lag!r}")
+        lag = math.nan
+    if not math.isfinite(lag):
+        fail(f"--torque-lag must be 'auto' or a finite number of seconds, got {torque_lag!r}")
+    return lag
 
 
 @app.command()

@@ -21,7 +21,8 @@ def fail(message: str) -> None:
 
 def guarded(fn):
     """``fn()``, or :func:`fail` with the message of a run-directory, recording, data-sheet or identifiability
-    error."""
+    error, or of the operating system's refusal to read or write a path (a directory where a file is read,
+    a file where a folder is written, no permission)."""
     from qomni.datasheet import DataSheetError
     from qomni.ident.least_squares import IdentifiabilityError
     from qomni.ident.rundir import RunDirectoryError
@@ -31,6 +32,8 @@ def guarded(fn):
         return fn()
     except (RunDirectoryError, RecordingError, IdentifiabilityError, DataSheetError, FileNotFoundError) as exc:
         fail(str(exc))
+    except OSError as exc:
+        fail(f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc))
 
 
 def progress() -> Progress:

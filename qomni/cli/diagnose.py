@@ -35,6 +35,8 @@ def diagnose(
     from qomni.diagnosis.paired import PairingError
     from qomni.diagnosis.report import reference_parameters, unnamed_further, write_report
 
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out} is a file, not a directory")
     repeats: list[Path] = []
     if reference is None:
         reference, *repeats = _twin_references(model, data, out / "twin_reference", datasheet, twin_runs)
@@ -98,6 +100,10 @@ def twin(
     from qomni.datasheet import DataSheetError
     from qomni.twin import TwinError, write_twin
 
+    if out.is_dir():
+        fail(f"--out {out} is a directory; give the vehicle description file to write")
+    if not out.parent.is_dir():
+        fail(f"--out {out}: its folder {out.parent} does not exist")
     try:
         path = guarded(lambda: write_twin(identification, out, datasheet))
     except (TwinError, DataSheetError, OSError) as exc:
