@@ -109,7 +109,7 @@ def write_json(path: Path, data: dict) -> None:
 
 def completed_steps(meta: dict, source: str) -> list[dict]:
     """The steps the run completed, from ``segments`` of metadata.json: each ``{name, k, t_start, t_end}``
-    with finite, ordered times.
+    with finite, ordered times, one segment after the other.
 
     Raises:
         RunDirectoryError: no list, or the list or an entry is malformed (file and entry named).
@@ -132,8 +132,24 @@ def completed_steps(meta: dict, source: str) -> list[dict]:
         if k not in (1, 2, 3, 4):
             raise RunDirectoryError(f"{source}: segments[{i}] ('{name}'): motion mode k = {k} is not one of "
                                     "the paper's four (1 to 4)")
+        if out and t0 < out[-1]["t_end"] - 1e-9:
+            raise RunDirectoryError(f"{source}: segments[{i}] ('{name}') starts at {t0} s, before segments[{i - 1}] "
+                                    f"('{out[-1]['name']}') ends at {out[-1]['t_end']} s: the campaign completes its "
+                                    "segments one after the other, in time order")
         out.append({"name": name, "k": k, "t_start": t0, "t_end": t1})
     return out
+
+
+def check_status(meta: dict, source: str) -> None:
+    """``status`` of metadata.json, where recorded, is one a campaign writes: ``running`` (it never
+    ended: killed), ``complete``, or ``aborted: …``.
+
+    Raises:
+        RunDirectoryError: any other value (file and value named)."""
+    status = meta.get("status", "complete")
+    if not isinstance(status, str) or not (status in ("complete", "running") or status.startswith("aborted")):
+        raise RunDirectoryError(f"{source}: status {status!r} is not one a campaign writes ('complete', "
+                                "'running' or 'aborted: …')")
 
 
 def step_signals(signals: Signals, name: str) -> Signals:
@@ -166,7 +182,8 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     """Signals, data sheet and metadata of a run directory.
 
     Raises:
-        RunDirectoryError: a file is missing; RecordingError/DataSheetError: a file is invalid, signals.csv
+        RunDirectoryError: a file is missing, or metadata.json's status or segments are not a campaign's;
+        RecordingError/DataSheetError: a file is invalid, signals.csv
         lacks rows (of a step the metadata says completed, or between two rows), a drive's signals are
         dead or disagree, or a torque or steering angle lies beyond the data sheet's limits
         (:mod:`.plausibility`).
@@ -177,6 +194,7 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
             raise RunDirectoryError(f"{run_dir}: no {name} (not a campaign run directory?)")
     meta = read_json(run_dir / METADATA)
     sheet = datasheet_from_metadata(meta, str(run_dir / METADATA))
+    check_status(meta, str(run_dir / METADATA))
     signals = read_signals(run_dir / SIGNALS)
     check_coverage(signals, completed_steps(meta, str(run_dir / METADATA)), sheet.drive.cycle_time,
                    str(run_dir / SIGNALS))

@@ -241,6 +241,16 @@ def test_metadata_without_its_segments_is_refused(run_dir):
         identify_run(run_dir)
 
 
+def test_segments_out_of_time_order_and_a_status_no_campaign_writes_are_refused(run_dir):
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    _edit_metadata(run_dir, segments=meta["segments"][::-1])
+    with pytest.raises(RunDirectoryError, match=r"segments\[1\] .* starts at .* before segments\[0\]"):
+        load_run(run_dir)
+    _edit_metadata(run_dir, segments=meta["segments"], status="bogus")
+    with pytest.raises(RunDirectoryError, match=r"status 'bogus' is not one a campaign writes"):
+        load_run(run_dir)
+
+
 def test_a_key_given_twice_in_a_json_file_is_refused(run_dir):
     text = (run_dir / "metadata.json").read_text()
     (run_dir / "metadata.json").write_text(text.replace('"status"', '"status": "complete", "status"', 1))
