@@ -68,6 +68,10 @@ class CampaignAborted(RuntimeError):
     """The campaign stopped early; the run directory keeps what was recorded until then."""
 
 
+class PlanPrefixError(ValueError):
+    """The segments a campaign was asked to drive up to are not the start of its plan."""
+
+
 class _LimitCycle(Exception):
     """The steering loop is in a limit cycle at the torque limit (during ``segment``, at ``time``)."""
 
@@ -323,15 +327,19 @@ class Campaign:
         controller: loop settings.
         source: a description of where the data come from (bus spec), stored in the metadata.
         on_progress: called with (cycles done, cycles total, segment name) every cycle.
+        until: the names of the planned segments to drive, the plan's first ones (rest, align and steps
+            alike; default all): a digital twin repeating a run that stopped after them.
 
     Raises:
+        PlanPrefixError: ``until`` is not the start of the plan.
         FileExistsError: ``run_dir`` already holds a recording.
     """
 
     def __init__(self, sheet: DataSheet, run_dir: str | Path,
                  settings: CampaignSettings | None = None,
                  controller: ControllerSettings | None = None, source: str = "",
-                 on_progress: Callable[[int, int, str], None] | None = None):
+                 on_progress: Callable[[int, int, str], None] | None = None,
+                 until: tuple[str, ...] | None = None):
         self.sheet = sheet
         self.settings = settings or CampaignSettings()
         self.controller_settings = controller or ControllerSettings()
@@ -343,6 +351,11 @@ class Campaign:
         #: cond(Θ̂₁ᵀΘ̂₁) along the planned trajectories, before the vehicle moves (docs/identification.md)
         self.planned_condition = steps_condition(self.steps, sheet)
         self.segments = self._segments()
+        if until is not None:
+            planned = tuple(seg.name for seg in self.segments[:len(until)])
+            if planned != tuple(until):
+                raise PlanPrefixError(f"segments {list(until)} are not the first of the plan's {list(planned)}")
+            self.segments = self.segments[:len(until)]
         # built now: the first one compiles the model (≈ 0.3 s), far longer than a SYNC timeout
         self.controllers = [StepController(seg, sheet, self.controller_settings)
                             for seg in self.segments]

@@ -164,6 +164,7 @@ class _TwinCampaign:
     settings: CampaignSettings
     recorded: dict
     controller: ControllerSettings
+    completed: tuple[str, ...] | None      # the planned segments a stopped data run completed, in order
 
 
 def _twin_campaign(identification: str | Path, data_dir: str | Path,
@@ -183,7 +184,17 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
         datasheet_from_metadata(meta, str(source))
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
     return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, source),
-                         meta["settings"], _controller_of(meta, source))
+                         meta["settings"], _controller_of(meta, source), _completed(meta))
+
+
+def _completed(meta: dict) -> tuple[str, ...] | None:
+    """The segments a data run that stopped (status other than complete) completed, its dead-time probe
+    and limit-cycle recoveries left out (the twin has neither); None for a complete run."""
+    from qomni.ident.campaign import LIMIT_CYCLE_STEP
+
+    if meta.get("status", "complete") == "complete":
+        return None
+    return tuple(seg["name"] for seg in meta["segments"] if seg["name"] not in ("probe", LIMIT_CYCLE_STEP))
 
 
 def twin_references(identification: str | Path, data_dir: str | Path, cache: str | Path, runs: int = 1,
@@ -229,10 +240,11 @@ def twin_reference(identification: str | Path, data_dir: str | Path, cache: str 
 
 def _reference_run(campaign: _TwinCampaign, cache: Path, run: int, on_progress) -> Path:
     """Reference run number ``run`` of ``campaign`` in ``cache``: found there when its stamp holds the same
-    twin, settings, controller and noise seed and the run completed, else run afresh in an emptied
-    ``cache`` and stamped once it has ended."""
+    twin, settings, controller, noise seed and, for a data run that stopped, the segments it completed
+    (the twin drives those alone), and the run completed; else run afresh in an emptied ``cache`` and
+    stamped once it has ended."""
     from qomni.embedded import embedded_vehicle
-    from qomni.ident.campaign import Campaign
+    from qomni.ident.campaign import Campaign, PlanPrefixError
     from qomni.ident.rundir import write_json
 
     cache = Path(cache)
@@ -240,6 +252,8 @@ def _reference_run(campaign: _TwinCampaign, cache: Path, run: int, on_progress) 
     key = {"twin": twin_toml(campaign.description), "settings": campaign.recorded,
            "controller": asdict(campaign.controller), "parameters": campaign.parameters,
            "noise_seed": noise_seed}
+    if campaign.completed is not None:
+        key["completed"] = list(campaign.completed)
     stamp = cache / TWIN_STAMP
     if _finished(cache, key):
         return cache
@@ -249,8 +263,12 @@ def _reference_run(campaign: _TwinCampaign, cache: Path, run: int, on_progress) 
         shutil.rmtree(cache)
     cache.mkdir(parents=True)
     (cache / "twin.toml").write_text(key["twin"])
-    steps = Campaign(campaign.sheet, cache, campaign.settings, campaign.controller,
-                     source=f"digital twin of {campaign.identification}")
+    source = f"digital twin of {campaign.identification}"
+    try:        # a data run that stopped: the twin drives the segments it completed (the diagnosis pairs them)
+        steps = Campaign(campaign.sheet, cache, campaign.settings, campaign.controller, source=source,
+                         until=campaign.completed)
+    except PlanPrefixError:              # segments not the plan's: the whole campaign, paired where it can be
+        steps = Campaign(campaign.sheet, cache, campaign.settings, campaign.controller, source=source)
     if on_progress is not None:
         steps.on_progress = on_progress
     with embedded_vehicle(campaign.description, seed=noise_seed, effects=EffectSet.ideal()) as link:

@@ -225,3 +225,18 @@ def test_interrupted_campaign_stops_the_wheels_and_keeps_the_recording(tmp_path,
     assert len(read_signals(tmp_path / "signals.csv")) == 399
     meta = json.loads((tmp_path / "metadata.json").read_text())
     assert meta["status"].startswith("aborted")
+
+
+def test_a_campaign_drives_up_to_the_segments_a_stopped_run_completed_and_only_the_plans_start(tmp_path):
+    """``until``: a twin repeating a run that stopped drives the segments it completed; names that are not
+    the start of the plan are refused, never driven as something else."""
+    from qomni.datasheet import DataSheet
+    from qomni.ident.campaign import Campaign, CampaignSettings, PlanPrefixError
+
+    sheet, settings = DataSheet.load(), CampaignSettings.quick()
+    names = [seg.name for seg in Campaign(sheet, tmp_path / "whole", settings).segments]
+    part = Campaign(sheet, tmp_path / "part", settings, until=tuple(names[:4]))
+    assert [seg.name for seg in part.segments] == names[:4] and len(part.controllers) == 4
+    with pytest.raises(PlanPrefixError, match="not the first of the plan's"):
+        Campaign(sheet, tmp_path / "wrong", settings, until=tuple(names[1:3]))
+    assert not (tmp_path / "wrong").exists()

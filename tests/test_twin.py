@@ -220,9 +220,9 @@ def test_a_decoded_log_without_its_runs_metadata_has_neither_twin_nor_diagnosis(
 def test_a_run_stopped_in_its_lane_change_is_diagnosed_paired_with_its_twin_over_the_steps_it_completed(
         identified_run, tmp_path):
     """A campaign stopped during its lane change keeps the rows it recorded, and its metadata lists the
-    segments it completed with an aborted status (as ``Campaign.run`` writes them). Its twin drives the
-    whole campaign; the diagnosis pairs the two over the data's steps and, on the ideal vehicle, names
-    nothing."""
+    segments it completed with an aborted status (as ``Campaign.run`` writes them). Its twin drives those
+    segments and no more; the diagnosis pairs the two over the data's steps and, on the ideal vehicle,
+    names nothing."""
     import json
     import shutil
 
@@ -243,6 +243,9 @@ def test_a_run_stopped_in_its_lane_change_is_diagnosed_paired_with_its_twin_over
     (data / "signals.csv").write_text("\n".join(kept) + "\n")
 
     reference = twin_reference(identified_run / "identification.json", data, tmp_path / "twin_reference")
+    twin_meta = json.loads((reference / "metadata.json").read_text())
+    assert twin_meta["status"] == "complete"
+    assert [seg["name"] for seg in twin_meta["segments"]] == [seg["name"] for seg in meta["segments"]]
     d = diagnose_paths(identified_run / "identification.json", data, reference_dir=reference, simulate=False)
     assert d.data_run["status"].startswith("aborted")
     assert {name.split("/")[0] for name in d.paired_channels} == {"steer_left", "steer_right", "straight",
