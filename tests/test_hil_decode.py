@@ -110,6 +110,35 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_is_missing(session, tmp_path):
+    """The cycle without node 3's TPDO is skipped; its row is missing between two rows of one step, which
+    every reader of the run refuses, naming the line (never an acceleration across a hidden gap)."""
+    from qomni.datasheet import DataSheet
+    from qomni.ident.recording import RecordingError
+    from qomni.ident.rundir import load_run
+
+    _, logs, _, _ = session
+    lines = logs[1].read_text().splitlines()
+    drops = [i for i, line in enumerate(lines) if " 183#" in line]
+    log = tmp_path / "lossy.log"
+    log.write_text("\n".join(lines[:drops[10]] + lines[drops[10] + 1:]) + "\n")
+    sheet = DataSheet.load()
+    drive = replace(sheet.drive, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                    rated_torque=2.0)
+    meta = {"format": "qomni-run/1", "vehicle": sheet.name, "status": "complete",
+            "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
+                          "nominal": asdict(sheet.nominal)},
+            "segments": [{"name": "straight", "k": 2, "t_start": 0.0, "t_end": 39 * T_S}]}
+    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["decode", str(log), "--out", str(out),
+                                      "--metadata", str(tmp_path / "metadata.json")])
+    assert result.exit_code == 0 and "1 incomplete skipped" in result.output
+    assert "every reader of the run refuses it" in " ".join(result.output.split())
+    with pytest.raises(RecordingError, match=r"signals.csv:\d+: time .* follows .*: 1 row\(s\) missing before it"):
+        load_run(out)
+
+
 def test_replay_of_the_master_frames_reproduces_the_run(session):
     """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
     from qomni.hil.tools.recorder import sent_by_master as _sent_by_master

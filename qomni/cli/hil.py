@@ -273,7 +273,9 @@ def decode(
     console.print(f"decoded {report.cycles} cycles ({report.incomplete} incomplete skipped) from "
                   f"{report.frames} frames into {out / SIGNALS}: {rows} rows"
                   + ("" if segments else "; no --metadata segments, so every row is step 'recorded' "
-                     "(qomni identify needs the campaign's step names)"))
+                     "(qomni identify needs the campaign's step names)")
+                  + ("; the rows of the skipped cycles are missing, and every reader of the run refuses it, "
+                     "naming the line" if report.incomplete else ""))
 
 
 @app.command()
