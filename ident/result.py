@@ -166,7 +166,7 @@ class IdentificationResult:
         Raises:
             ValueError: naming the key (``parameters.m_ch.value``, ``torque_lag.value`` …): a parameter
                 missing or unknown, a value that is not a JSON number (a string, a boolean, null), not
-                finite, a standard deviation negative, B_w not positive, a torque lag beyond ±MAX_LAG
+                finite, a unit other than the model's, a standard deviation negative, B_w not positive, a torque lag beyond ±MAX_LAG
                 (:mod:`.torque_timing`), a velocity threshold not positive, a condition number below 1,
                 a covariance not 10 × 10 finite and symmetric, a row count not a non-negative integer.
         """
@@ -180,6 +180,9 @@ class IdentificationResult:
                 raise ValueError(f"parameters.{name}: missing")
             entry = json_object(params[name], f"parameters.{name}")
             value = json_number(entry.get("value"), f"parameters.{name}.value")
+            if "unit" in entry and entry["unit"] != PARAMETER_UNITS[name]:
+                raise ValueError(f"parameters.{name}.unit is {entry['unit']!r}; this model's {name} is in "
+                                 f"{PARAMETER_UNITS[name]}")
             if name == "B_w":
                 std = json_number(entry.get("std") or 0.0, f"parameters.{name}.std")
             else:

@@ -70,7 +70,8 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     """The emulator description whose truth is ``result`` on ``sheet``'s vehicle (module docstring).
 
     Raises:
-        TwinError: an identified inertia or mass is not positive, or a friction coefficient negative.
+        TwinError: an identified inertia or mass is not positive, or a friction coefficient negative, or a
+            parameter lies more than :data:`NOMINAL_FACTOR` off the data sheet's nominal value.
     """
     prototype = VehicleDescription.load()
     truth = Truth(**{name: float(value) for name, value in zip(PARAMETER_NAMES, result.p)})
@@ -80,12 +81,36 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     if wrong:
         raise TwinError(f"{source}: identified {', '.join(wrong)}: not physical (an inertia or mass not "
                         "positive, or a negative friction)")
+    _check_order_of_magnitude(truth, sheet, source)
     body = replace(prototype.body, wheel_transverse_inertia=max(prototype.body.wheel_transverse_inertia,
                                                                 truth.B_w / 2))
     description = replace(prototype, datasheet=replace(sheet, name=f"twin of {sheet.name}"), truth=truth,
                           body=body, source=source)
     description._check()
     return description
+
+
+#: How far an identified parameter may lie from the data sheet's nominal value, as a factor, before the
+#: twin takes it for another vehicle's identification or another unit: the campaign's vehicles differ
+#: from their data sheets by tens of per cent (a 300 kg payload: m_ch 1.36 ×).
+NOMINAL_FACTOR = 10.0
+#: Parameters bounded from below as well: every vehicle has inertia and mass; a friction coefficient may
+#: be identified near 0 (a long actuator delay takes viscous friction out of the steering steps).
+_INERTIAS = ("C_l", "C_r", "m_ch", "C_ch", "B_w")
+
+
+def _check_order_of_magnitude(truth: Truth, sheet: DataSheet, source: str) -> None:
+    """Every identified parameter within :data:`NOMINAL_FACTOR` of ``sheet``'s nominal value (inertias
+    and masses both ways, frictions from above).
+
+    Raises: TwinError: names the parameter, both values and the data sheet."""
+    for name in PARAMETER_NAMES:
+        value, nominal = getattr(truth, name), getattr(sheet.nominal, name)
+        low = nominal / NOMINAL_FACTOR if name in _INERTIAS else 0.0
+        if nominal > 0 and not low <= value <= NOMINAL_FACTOR * nominal:
+            raise TwinError(f"{source}: identified {name} = {value:.6g} is more than {NOMINAL_FACTOR:g} × off the "
+                            f"data sheet's nominal {nominal:.6g} ({sheet.name}): the identification of another "
+                            "vehicle, or another unit")
 
 
 def reference_seed(seed: int, run: int = 0) -> int:

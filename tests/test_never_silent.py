@@ -402,6 +402,14 @@ def test_a_truncated_identification_is_a_clear_error(run_dir):
     assert result.exit_code == 2 and "not valid JSON" in result.output
 
 
+def test_an_identification_in_another_unit_is_refused(run_dir):
+    data = json.loads((run_dir / "identification.json").read_text())
+    data["parameters"]["m_ch"]["unit"] = "g"
+    (run_dir / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(RunDirectoryError, match=r"parameters.m_ch.unit is 'g'; this model's m_ch is in kg"):
+        load_identification(run_dir)
+
+
 def test_out_that_is_a_file_and_a_negative_seed_are_refused(tmp_path):
     (tmp_path / "file").write_text("")
     result = _cli("campaign", "--out", tmp_path / "file")

@@ -262,6 +262,15 @@ def test_an_unphysical_identification_has_no_twin(name, value):
         twin_description(result, DataSheet.load())
 
 
+@pytest.mark.parametrize("name, factor", [("m_ch", 1000.0), ("C_ch", 0.05), ("d_vw", 20.0)])
+def test_an_identification_orders_of_magnitude_off_its_data_sheet_has_no_twin(name, factor):
+    # another unit (g for kg) or another vehicle's file: the twin would drive a vehicle nobody has
+    result = identification()
+    result = replace(result, values={**result.values, name: factor * result.values[name]})
+    with pytest.raises(TwinError, match=rf"identified {name} = .* more than 10 × off the data sheet's nominal"):
+        twin_description(result, DataSheet.load())
+
+
 def test_the_twin_repeats_the_data_runs_controller_with_its_recorded_steering_bandwidth():
     """A data run that probed its dead time recorded the bandwidth it then used; the twin probes as well (the
     same campaign, probe step included) but keeps that bandwidth instead of retuning to its own reading. A
