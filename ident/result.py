@@ -166,8 +166,9 @@ class IdentificationResult:
         Raises:
             ValueError: naming the key (``parameters.m_ch.value``, ``torque_lag.value`` …): a parameter
                 missing or unknown, a value that is not a JSON number (a string, a boolean, null), not
-                finite, a unit other than the model's, a standard deviation negative, B_w not positive, a torque lag beyond ±MAX_LAG
-                (:mod:`.torque_timing`), a velocity threshold not positive, a condition number below 1,
+                finite, a unit other than the model's, a standard deviation negative, B_w not positive, a
+                torque lag beyond ±MAX_LAG (:mod:`.torque_timing`), a velocity threshold not positive, a
+                condition number below 1,
                 a covariance not 10 × 10 finite and symmetric, a row count not a non-negative integer.
         """
         params = json_object(d.get("parameters"), "parameters")

@@ -133,9 +133,9 @@ def completed_steps(meta: dict, source: str) -> list[dict]:
             raise RunDirectoryError(f"{source}: segments[{i}] ('{name}'): motion mode k = {k} is not one of "
                                     "the paper's four (1 to 4)")
         if out and t0 < out[-1]["t_end"] - 1e-9:
-            raise RunDirectoryError(f"{source}: segments[{i}] ('{name}') starts at {t0} s, before segments[{i - 1}] "
-                                    f"('{out[-1]['name']}') ends at {out[-1]['t_end']} s: the campaign completes its "
-                                    "segments one after the other, in time order")
+            raise RunDirectoryError(f"{source}: segments[{i}] ('{name}') starts at {t0} s, before "
+                                    f"segments[{i - 1}] ('{out[-1]['name']}') ends at {out[-1]['t_end']} s: the "
+                                    "campaign completes its segments one after the other, in time order")
         out.append({"name": name, "k": k, "t_start": t0, "t_end": t1})
     return out
 

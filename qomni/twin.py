@@ -108,9 +108,9 @@ def _check_order_of_magnitude(truth: Truth, sheet: DataSheet, source: str) -> No
         value, nominal = getattr(truth, name), getattr(sheet.nominal, name)
         low = nominal / NOMINAL_FACTOR if name in _INERTIAS else 0.0
         if nominal > 0 and not low <= value <= NOMINAL_FACTOR * nominal:
-            raise TwinError(f"{source}: identified {name} = {value:.6g} is more than {NOMINAL_FACTOR:g} × off the "
-                            f"data sheet's nominal {nominal:.6g} ({sheet.name}): the identification of another "
-                            "vehicle, or another unit")
+            raise TwinError(f"{source}: identified {name} = {value:.6g} is more than {NOMINAL_FACTOR:g} × off "
+                            f"the data sheet's nominal {nominal:.6g} ({sheet.name}): the identification of "
+                            "another vehicle, or another unit")
 
 
 def reference_seed(seed: int, run: int = 0) -> int:
