@@ -7,7 +7,7 @@ increasing); single glitches are repaired (:mod:`.spikes`). What neither sees is
 a step that ``metadata.json`` says completed or with rows missing inside a step, a drive whose signal is
 dead or wired the wrong way for the whole run, or a column in another unit: each still gives parameters,
 wrong ones (a zeroed torque actual on one drive: m_ch −26 %; a frozen encoder: m_ch +35 %; 30 rows
-missing in a rotation: m_ch −11 %). These checks refuse such a run with a
+missing in the straight step: m_ch −11 %). These checks refuse such a run with a
 :class:`~.recording.RecordingError` naming the file, the line, step or column and what is wrong.
 """
 from __future__ import annotations
