@@ -151,7 +151,7 @@ def withheld(work: Path, workers, console) -> int:
     return 1 if counts["error"] else 0
 
 
-def main(argv=None) -> int:
+def _run(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1 draw per effect, quick campaigns")
     ap.add_argument("--campaigns", choices=("quick", "full"), default=None,
@@ -290,6 +290,18 @@ def main(argv=None) -> int:
     for err in summary["errors"]:
         console.print(Text("error", "red"), Text(str(err)))
     return 0 if not summary["errors"] else 1
+
+
+def main(argv=None) -> int:
+    """The suite (:func:`_run`); a results file gone bad, or one that holds another draw, is printed plainly
+    and ends it with exit status 2 (no traceback, the file left as it is)."""
+    from qomni.ident.rundir import RunDirectoryError
+
+    try:
+        return _run(argv)
+    except RunDirectoryError as exc:
+        Console(markup=False, highlight=False).print(f"error: {exc}")
+        return 2
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from qomni.conventions import P1_NAMES
+from qomni.datasheet import vehicle_differences
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
 from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError, file_sha256,
@@ -608,6 +609,22 @@ def _load_run(run_dir, model: IdentificationResult):
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 
+def _another_run_of_the_vehicle(run_dir, sheet, data_dir, data_sheet, role: str) -> None:
+    """``run_dir`` (the ``role`` run: reference, held-out data) is a run of the data's vehicle other than the
+    data: another recording (its ``signals.csv`` is not the data's) with the same data sheet geometry and
+    drive. The data against themselves leave no residual and nothing to hold out; a run of another vehicle
+    leaves the difference of two vehicles, which no hypothesis describes.
+
+    Raises: RunDirectoryError: names the run and what differs."""
+    if file_sha256(Path(run_dir) / SIGNALS) == file_sha256(Path(data_dir) / SIGNALS):
+        raise RunDirectoryError(f"{role} {run_dir}: the same recording as the data {data_dir} (signals.csv "
+                                "identical); give another run")
+    differ = vehicle_differences(sheet, data_sheet)
+    if differ:
+        raise RunDirectoryError(f"{role} {run_dir}: its data sheet differs from the data's in "
+                                f"{', '.join(differ)}: a run of another vehicle")
+
+
 def _repeat_channels(dirs, data_meta: dict, model: IdentificationResult, cycle_time: float) -> list[tuple]:
     """(channels, lane-change steering channels, cycle shift) of each repeat of the reference run under
     ``model``.
@@ -653,7 +670,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
         withhold: names of hypotheses left out of the library (every variant), to see what the diagnosis
             says of an effect it has no hypothesis for (``benchmarks/blind_suite.py --withhold``).
     Raises:
-        RunDirectoryError, RecordingError: a run directory is missing a file or is malformed.
+        RunDirectoryError, RecordingError: a run directory is missing a file or is malformed; the reference
+            or held-out run is the data's recording itself, or a run of a vehicle with another data sheet.
         ValueError: ``withhold`` names a hypothesis the library does not have.
         PairingError: ``reference_repeats`` without a reference run paired with the data, or a repeat
             that is not its campaign again.
@@ -675,6 +693,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     hold = None
     if holdout_dir is not None:
         h_signals, h_sheet, _ = _load_run(holdout_dir, model)
+        _another_run_of_the_vehicle(holdout_dir, h_sheet, data_dir, sheet, "held-out run")
         hold = channels(h_signals, h_sheet, model)
     prior = not model_from_data
     # the bus measures the report lag; where it bounds it under any the hypothesis names, the ground's data
@@ -694,8 +713,9 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
     ref_problem = ref_plain = None
     fit_chans, paired_names = chans, []
     steer_ref, ref_measured = [], None
-    if reference_dir is not None and Path(reference_dir).resolve() != Path(data_dir).resolve():
+    if reference_dir is not None:
         r_signals, r_sheet, r_meta = _load_run(reference_dir, model)
+        _another_run_of_the_vehicle(reference_dir, r_sheet, data_dir, sheet, "reference run")
         ref, steer_ref = _channels_and_steering(r_signals, r_sheet, model)
         # the twin's wheels have the model's friction, lifted or not, measured as precisely as the data's
         ref_measured = None if measured is None else replace(measured, delta=np.zeros_like(measured.delta))
@@ -796,7 +816,7 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
                   for n, d, v in zip(P1_NAMES, base.delta_p, model.p1)}
     return Diagnosis(where, candidates, accepted, verdict, [c.hypothesis.variant for c in unexplained],
                      simulation,
-                     "second run" if hold is not None else "alternate 1 s windows of the data",
+                     f"second run: {holdout_dir}" if hold is not None else "alternate 1 s windows of the data",
                      model_source, str(data_dir), base_delta, model, Path(data_dir) / "metadata.json",
                      chans, (fp, hp), base, final, *_holdout_rms(fp, hp, model, base, lag, cache), data_run,
                      str(reference_dir) if ref_problem is not None else "none",

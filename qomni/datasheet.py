@@ -193,6 +193,13 @@ class DataSheet:
                 fail("nominal", key, "must be >= 0", getattr(n, key))
 
 
+def vehicle_differences(a: DataSheet, b: DataSheet) -> list[str]:
+    """The ``geometry.key`` and ``drive.key`` entries in which two data sheets differ: what makes them two
+    vehicles (their nominal parameters are a starting point, not the vehicle). Empty for the same vehicle."""
+    return [f"{part}.{f.name}" for part in ("geometry", "drive") for f in fields(getattr(a, part))
+            if getattr(getattr(a, part), f.name) != getattr(getattr(b, part), f.name)]
+
+
 def read_table(data: Mapping, name: str, kind: type, source: str, error: type[Exception] | None = None):
     """The table ``[name]`` of a parsed TOML document as the dataclass ``kind``, whose fields are numbers:
     every field present, each a number (not a boolean or a string), finite, an integer where the field is
@@ -227,4 +234,5 @@ def read_table(data: Mapping, name: str, kind: type, source: str, error: type[Ex
     return kind(**values)
 
 
-__all__ = ["DataSheet", "DataSheetError", "Drive", "Geometry", "Nominal", "DEFAULT_DATASHEET", "read_table"]
+__all__ = ["DataSheet", "DataSheetError", "Drive", "Geometry", "Nominal", "DEFAULT_DATASHEET", "read_table",
+           "vehicle_differences"]

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qomni.conventions import PARAMETER_NAMES
-from qomni.datasheet import DataSheet, DataSheetError
+from qomni.datasheet import DataSheet, DataSheetError, vehicle_differences
 from qomni.emulator.description import Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.result import IdentificationResult
@@ -197,7 +197,8 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     """The twin of ``identification`` and the campaign of ``data_dir``, the data run read and checked
     whole first: a run cut short or gone bad is refused before the twin's campaign spends its minutes.
 
-    Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: it records no
+    Raises: RunDirectoryError, RecordingError, DataSheetError: the data run; TwinError: ``datasheet`` gives
+    another geometry or drive than the data's run recorded, or the run records no
     campaign settings, or as :func:`_twin_of`."""
     data_dir = Path(data_dir)
     source = data_dir / METADATA
@@ -205,8 +206,15 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     if not meta.get("settings"):
         raise TwinError(f"{source} records no campaign settings (a decoded bus log without its run's "
                         "metadata.json?): the twin cannot drive the data's campaign")
-    sheet = _sheet_for(Path(identification), datasheet) if datasheet is not None else \
-        datasheet_from_metadata(meta, str(source))
+    if datasheet is None:
+        sheet = datasheet_from_metadata(meta, str(source))
+    else:
+        sheet = _sheet_for(Path(identification), datasheet)
+        if "datasheet" in meta:
+            differ = vehicle_differences(sheet, datasheet_from_metadata(meta, str(source)))
+            if differ:
+                raise TwinError(f"{datasheet}: differs from the data sheet the data's run recorded ({source}) "
+                                f"in {', '.join(differ)}: the twin must be the data's vehicle")
     description, parameters = _twin_of(Path(identification), data_dir, sheet)
     return _TwinCampaign(Path(identification), sheet, description, parameters, _settings_of(meta, source),
                          meta["settings"], _controller_of(meta, source), _completed(meta))

@@ -132,6 +132,30 @@ def test_the_results_file_records_the_master_seed_and_each_draw_and_a_rerun_resu
     assert sorted(r.case.name for r in again) == sorted(c.name for c in cases)
 
 
+def test_a_resume_refuses_another_draws_cases_and_an_edited_record_and_keeps_the_results_file(tmp_path):
+    """A resume never drops the cases of another draw (the file rewritten without them) nor scores a record
+    edited since (its truth no longer the drawn case's)."""
+    import json
+
+    from qomni.ident.rundir import RunDirectoryError
+
+    cases = [c for c in draw_cases(23, singles=1, pairs=1, triples=0, other_vehicle_singles=0, clean=1)
+             if len(c.truth) != 1][:2]
+    path = tmp_path / "r.json"
+    run_suite(cases, tmp_path, workers=1, results_path=path, runner=probe_case)
+    written = path.read_text()
+    other = [c for c in draw_cases(24, singles=1, pairs=1, triples=0, other_vehicle_singles=0, clean=1)
+             if len(c.truth) != 1][:2]
+    with pytest.raises(RunDirectoryError, match=r"case '.*' is not a case of this draw"):
+        run_suite(other, tmp_path, workers=1, results_path=path, runner=_OnlyNew({c.name for c in other}))
+    assert path.read_text() == written
+    edited = json.loads(written)
+    edited["cases"][0]["case"]["truth"] = ["payload"]
+    path.write_text(json.dumps(edited))
+    with pytest.raises(RunDirectoryError, match=r"differs from the case drawn under that name"):
+        run_suite(cases, tmp_path, workers=1, results_path=path, runner=_OnlyNew(set()))
+
+
 def test_a_rerun_runs_again_the_cases_that_ended_in_an_error(tmp_path):
     cases = [c for c in draw_cases(22, singles=1, pairs=1, triples=1, other_vehicle_singles=0, clean=1)
              if len(c.truth) != 1][:2]
@@ -249,6 +273,10 @@ def test_a_work_directory_keeps_its_suite_and_refuses_to_score_another(tmp_path,
     assert main(["--work", str(tmp_path / "k3"), "--recorded-only", "--quick", "--master-seed", "2027",
                  "--twin-runs", "3"]) == 0
     assert read_run(tmp_path / "k3" / "blind_suite.json")["twin_runs"] == 3
+    text = (tmp_path / "blind_suite.json").read_text()
+    (tmp_path / "blind_suite.json").write_text(text[:len(text) // 2])              # a results file cut short
+    assert main(["--work", str(tmp_path), "--recorded-only"]) == 2
+    assert "not valid JSON" in capsys.readouterr().out
     assert main(["--work", str(tmp_path / "k3"), "--recorded-only"]) == 0         # the recorded 3 is the default
     assert main(["--work", str(tmp_path / "k3"), "--recorded-only", "--twin-runs", "1"]) == 2
 

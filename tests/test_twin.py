@@ -16,6 +16,8 @@ from qomni.emulator.effects import EffectSet
 from qomni.emulator.vehicle import Emulator
 from qomni.twin import TwinError, reference_seed, twin_description, twin_toml
 
+PROTOTYPE_TOML = Path(__file__).resolve().parents[1] / "emulator" / "data" / "prototype.toml"
+
 
 def test_the_twins_truth_is_the_identification_on_the_data_sheets_vehicle(tmp_path):
     result, sheet = identification(), DataSheet.load()
@@ -251,6 +253,45 @@ def test_a_run_stopped_in_its_lane_change_is_diagnosed_paired_with_its_twin_over
     assert {name.split("/")[0] for name in d.paired_channels} == {"steer_left", "steer_right", "straight",
                                                                   "rotation"}
     assert d.verdict == "no significant unmodelled effect"
+
+
+def test_the_reference_and_held_out_runs_are_other_runs_of_the_datas_vehicle(identified_run, tmp_path):
+    """The data against themselves leave no residual; a run of another vehicle (another data sheet) leaves
+    the difference of two vehicles: both refused, naming the run and what differs."""
+    import json
+    import shutil
+
+    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.ident.rundir import RunDirectoryError
+
+    model = identified_run / "identification.json"
+    copy = tmp_path / "copy"
+    shutil.copytree(identified_run, copy)
+    for kwargs in ({"reference_dir": identified_run}, {"reference_dir": copy}, {"holdout_dir": copy}):
+        with pytest.raises(RunDirectoryError, match="the same recording as the data"):
+            diagnose_paths(model, identified_run, simulate=False, **kwargs)
+    other = tmp_path / "other"
+    shutil.copytree(identified_run, other)
+    meta = json.loads((other / "metadata.json").read_text())
+    meta["datasheet"]["geometry"]["l"] *= 1.2
+    (other / "metadata.json").write_text(json.dumps(meta))
+    lines = (other / "signals.csv").read_text().splitlines()
+    (other / "signals.csv").write_text("\n".join(lines[:-1]) + "\n")         # another recording
+    for kwargs in ({"reference_dir": other}, {"holdout_dir": other}):
+        with pytest.raises(RunDirectoryError, match=r"data sheet differs from the data's in geometry.l"):
+            diagnose_paths(model, identified_run, simulate=False, **kwargs)
+
+
+def test_a_twin_data_sheet_that_is_not_the_datas_vehicle_is_refused(identified_run, tmp_path):
+    from qomni.twin import twin_reference
+
+    sheet = tmp_path / "other.toml"
+    text = PROTOTYPE_TOML.read_text()
+    sheet.write_text(text.replace("i_G = 25.0", "i_G = 50.0", 1))
+    assert sheet.read_text() != text
+    with pytest.raises(TwinError, match=r"differs from the data sheet the data's run recorded .* in drive.i_G"):
+        twin_reference(identified_run / "identification.json", identified_run, tmp_path / "ref", datasheet=sheet)
+    assert not (tmp_path / "ref").exists()
 
 
 @pytest.mark.parametrize("name, value", [("m_ch", -1.0), ("C_l", 0.0), ("d_cw", -0.1)])

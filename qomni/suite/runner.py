@@ -161,6 +161,8 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
         the results of every case, the resumed ones included.
     Raises:
         ValueError: an unknown reference mode, or ``twin_runs`` < 1.
+        RunDirectoryError: the results file is not valid, or holds a finished case that is not one of
+            ``all_cases`` as drawn (:func:`_check_recorded`).
     """
     if reference not in REFERENCES:
         raise ValueError(f"reference must be one of {REFERENCES}, not {reference!r}")
@@ -172,10 +174,11 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
     if runner is run_case and reference == "ideal":
         for vehicle in sorted({c.vehicle for c in all_cases}):
             reference_run(work, quick, vehicle=vehicle)
-    wanted = {c.name for c in all_cases}
+    recorded = read_results(results_path) if results_path and Path(results_path).exists() else []
+    _check_recorded(recorded, all_cases, results_path)
     # a case that ended in an error (a campaign cut short, a worker lost) is run again
-    results = [r for r in (read_results(results_path) if results_path and Path(results_path).exists() else [])
-               if r.case.name in wanted and not r.error]
+    wanted = {c.name for c in all_cases}
+    results = [r for r in recorded if r.case.name in wanted and not r.error]
     done = {r.case.name for r in results}
     own = executor is None
     executor = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1)
@@ -194,6 +197,33 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
         if own:
             executor.shutdown()
     return results
+
+
+def _comparable(case: Case) -> str:
+    """A case as its results file holds it (JSON: tuples become lists), for comparing a recorded case
+    with the one drawn."""
+    import json
+    from dataclasses import asdict
+
+    return json.dumps(asdict(case), sort_keys=True)
+
+
+def _check_recorded(recorded: list[CaseResult], all_cases: list[Case], results_path) -> None:
+    """Every finished case of the results file is one of the suite's cases exactly as drawn (effects,
+    truth, seed, vehicle): a resume never scores an edited record, and never rewrites the file without the
+    cases of another draw (another master seed), which it would drop.
+
+    Raises: RunDirectoryError: names the case."""
+    from qomni.ident.rundir import RunDirectoryError
+
+    drawn = {c.name: _comparable(c) for c in all_cases}
+    for r in recorded:
+        if r.error or drawn.get(r.case.name) == _comparable(r.case):
+            continue
+        why = "is not a case of this draw (another master seed or count)" if r.case.name not in drawn else \
+            "differs from the case drawn under that name (an edited record)"
+        raise RunDirectoryError(f"{results_path}: case {r.case.name!r} {why}; the suite would drop or rescore "
+                                "it: use another work directory, or the draw that recorded it")
 
 
 def probe_case(case: Case, work: str, reference: str, quick: bool) -> CaseResult:
