@@ -105,6 +105,14 @@ def candidate_json(c: Candidate, rank: int) -> dict:
     }
 
 
+def reference_kind(reference: str) -> str:
+    """``"digital twin"`` (a run ``qomni.twin`` made and stamped), ``"recorded run"`` (one given by the
+    user, e.g. the run a model was identified on) or ``"none"``."""
+    if reference == "none":
+        return "none"
+    return "digital twin" if (Path(reference) / TWIN_STAMP).is_file() else "recorded run"
+
+
 def reference_parameters(reference: str) -> str | None:
     """What a digital twin reference run was made from (its ``twin.json``: the model as identified, or a
     physically consistent re-identification of the data run); None for another reference run."""
@@ -155,6 +163,7 @@ def gap_dict(d: Diagnosis) -> dict:
         "data": d.data_source,
         "data_run": d.data_run,
         "reference": d.reference,
+        "reference_kind": reference_kind(d.reference),
         "reference_parameters": reference_parameters(d.reference),
         "paired_channels": d.paired_channels,
         "reference_repeats": d.reference_repeats,

@@ -145,6 +145,7 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
     run, out = work / "ideal", work / "ideal" / "twin_gap"
     gap = _diagnose_against_own_twin(run, out)
     assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
+    assert gap["reference_kind"] == "digital twin"
     assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
     # the bus reads no report lag behind the set-point: the ground's data are not asked for one
     assert gap["data_run"]["setpoint_lag"]["cycles"] < 0.1

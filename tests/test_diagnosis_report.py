@@ -101,7 +101,7 @@ def test_report_sections_overlay_intervals_and_escaping(diagnosis, tmp_path):
                     "How far: held-out residual", "How far: forward simulation"):
         assert f"<h2>{heading}" in page
     assert "Reference: " + html.escape(f"/twin/{HOSTILE}") in page
-    assert gap["reference"] == f"/twin/{HOSTILE}"
+    assert gap["reference"] == f"/twin/{HOSTILE}" and gap["reference_kind"] == "recorded run"   # no twin stamp
     assert "3 isolated glitches repaired before the fit" in page and gap["data_run"]["spikes"]["total_corrupt"] == 3
     # The verdict and the overlaid effect are the accepted one; one residual figure per step.
     assert "Verdict: " + html.escape(f"unmodelled effect: viscous{HOSTILE}") in page
