@@ -414,8 +414,11 @@ def test_over_torque_faults_after_excess_torque_time(channel, master):
 
 
 # -------------------------------------------------------------------------------- robustness
-def test_random_frames_never_crash_a_node(master, server, plant):
-    """Seeded fuzz: random IDs (known and unknown COB-IDs, extended, RTR), random DLC and data."""
+def test_random_frames_never_crash_a_node(master, unsupervised_server, plant):
+    """Seeded fuzz: random IDs (known and unknown COB-IDs, extended, RTR), random DLC and data. The nodes
+    run without SYNC-loss supervision: the SDO set-up after the reset pauses the SYNCs, which on a loaded
+    machine can outlast the 0.1 s timeout, and the supervision is not what this test is about."""
+    server = unsupervised_server
     rng = random.Random(5)
     master.nmt(0x01)
     for _ in range(3000):
