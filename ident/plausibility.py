@@ -169,7 +169,7 @@ def check_drives(signals: Signals, path: str) -> None:
         return
     dt = np.diff(time)
     ts = float(np.median(dt))
-    consecutive = np.abs(dt - ts) <= 0.5 * ts
+    consecutive = np.abs(dt - ts) <= MAX_SPACING_JITTER * ts
     for j, wheel in enumerate(WHEELS):
         x, v = signals.motor_position[:, j], signals.motor_velocity[:, j]
         d = np.diff(x)[consecutive]

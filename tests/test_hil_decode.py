@@ -80,24 +80,32 @@ def test_decode_with_another_mapping_needs_its_eds(session, tmp_path):
         node_files(dcf=[lean])
 
 
-def test_qomni_decode_writes_a_run_directory(session, tmp_path):
+def _run_metadata(tmp_path, segments: list[dict]):
+    """A run's metadata.json for ``qomni decode --metadata``: the prototype's data sheet with the session's
+    drives (encoder, steering sensor, T_s, rated torque) and ``segments``; returns its path."""
     from qomni.datasheet import DataSheet
-    from qomni.ident.rundir import load_run
-    from qomni.cli import app
 
-    _, logs, reference, _ = session
     sheet = DataSheet.load()
     drive = replace(sheet.drive, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
                     rated_torque=2.0)
     meta = {"format": "qomni-run/1", "vehicle": sheet.name, "status": "complete",
             "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
                           "nominal": asdict(sheet.nominal)},
-            "segments": [{"name": "steer_left", "k": 1, "t_start": 0.0, "t_end": 20 * T_S},
-                         {"name": "straight", "k": 2, "t_start": 20 * T_S, "t_end": 39 * T_S}]}
-    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+            "segments": segments}
+    path = tmp_path / "metadata.json"
+    path.write_text(json.dumps(meta))
+    return path
+
+
+def test_qomni_decode_writes_a_run_directory(session, tmp_path):
+    from qomni.ident.rundir import load_run
+    from qomni.cli import app
+
+    _, logs, reference, _ = session
+    metadata = _run_metadata(tmp_path, [{"name": "steer_left", "k": 1, "t_start": 0.0, "t_end": 20 * T_S},
+                                        {"name": "straight", "k": 2, "t_start": 20 * T_S, "t_end": 39 * T_S}])
     out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out),
-                                      "--metadata", str(tmp_path / "metadata.json")])
+    result = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out), "--metadata", str(metadata)])
     assert result.exit_code == 0, result.output
     signals, loaded_sheet, loaded_meta = load_run(out)
     assert signals.steps() == ["steer_left", "straight"] and len(signals) == 39   # t = 0 is in no segment
@@ -113,7 +121,6 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
 def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_is_missing(session, tmp_path):
     """The cycle without node 3's TPDO is skipped; its row is missing between two rows of one step, which
     every reader of the run refuses, naming the line (never an acceleration across a hidden gap)."""
-    from qomni.datasheet import DataSheet
     from qomni.ident.recording import RecordingError
     from qomni.ident.rundir import load_run
 
@@ -122,17 +129,9 @@ def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_i
     drops = [i for i, line in enumerate(lines) if " 183#" in line]
     log = tmp_path / "lossy.log"
     log.write_text("\n".join(lines[:drops[10]] + lines[drops[10] + 1:]) + "\n")
-    sheet = DataSheet.load()
-    drive = replace(sheet.drive, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
-                    rated_torque=2.0)
-    meta = {"format": "qomni-run/1", "vehicle": sheet.name, "status": "complete",
-            "datasheet": {"geometry": asdict(sheet.geometry), "drive": asdict(drive),
-                          "nominal": asdict(sheet.nominal)},
-            "segments": [{"name": "straight", "k": 2, "t_start": 0.0, "t_end": 39 * T_S}]}
-    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    metadata = _run_metadata(tmp_path, [{"name": "straight", "k": 2, "t_start": 0.0, "t_end": 39 * T_S}])
     out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["decode", str(log), "--out", str(out),
-                                      "--metadata", str(tmp_path / "metadata.json")])
+    result = CliRunner().invoke(app, ["decode", str(log), "--out", str(out), "--metadata", str(metadata)])
     assert result.exit_code == 0 and "1 incomplete skipped" in result.output
     assert "every reader of the run refuses it" in " ".join(result.output.split())
     with pytest.raises(RecordingError, match=r"signals.csv:\d+: time .* follows .*: 1 row\(s\) missing before it"):

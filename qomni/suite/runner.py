@@ -176,9 +176,9 @@ def run_suite(all_cases: list[Case], work: str | Path, *, quick: bool = True, wo
             reference_run(work, quick, vehicle=vehicle)
     recorded = read_results(results_path) if results_path and Path(results_path).exists() else []
     _check_recorded(recorded, all_cases, results_path)
-    # a case that ended in an error (a campaign cut short, a worker lost) is run again
-    wanted = {c.name for c in all_cases}
-    results = [r for r in recorded if r.case.name in wanted and not r.error]
+    # every finished record is a drawn case (checked above); one that ended in an error (a campaign cut
+    # short, a worker lost) is run again
+    results = [r for r in recorded if not r.error]
     done = {r.case.name for r in results}
     own = executor is None
     executor = executor or ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1)
