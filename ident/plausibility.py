@@ -51,8 +51,8 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
     Raises:
         RecordingError: the rows are not ``cycle_time`` apart (median spacing, 1 %), two consecutive rows
             are not one spacing apart (:func:`_check_spacing`: a row missing), a step has fewer or
-            more rows than that, or rows of another step inside it (names the step, its time span and
-            the rows found).
+            more rows than that, rows of another step inside it (names the step, its time span and
+            the rows found), or a row whose motion mode k is not its step's (names the line).
     """
     time = np.asarray(signals.time, dtype=float)
     period = cycle_time
@@ -86,6 +86,12 @@ def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, pa
         if others:
             raise RecordingError(f"{path}: rows of {', '.join(others)} inside step '{seg['name']}' "
                                  f"({t0:.3f}–{t1:.3f} s): the recording does not match its metadata")
+        modes = np.asarray(signals.k)[inside]
+        if len(modes) and (modes != seg["k"]).any():
+            i = int(np.flatnonzero(inside)[np.flatnonzero(modes != seg["k"])[0]])
+            raise RecordingError(f"{path}:{i + 2}: motion mode k = {int(signals.k[i])} inside step "
+                                 f"'{seg['name']}', which the metadata records in mode k = {seg['k']}: the "
+                                 "recording does not match its metadata")
 
 
 def _check_spacing(time: np.ndarray, dt: np.ndarray, within: np.ndarray, spacing: float, path: str) -> None:

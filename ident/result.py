@@ -10,8 +10,13 @@ import numpy as np
 from qomni.conventions import P1_NAMES, PARAMETER_NAMES, PARAMETER_UNITS
 
 from .json_values import json_number, json_object, row_counts
+from .least_squares import RANK_TOL
 from .regressor import DEFAULT_VELOCITY_THRESHOLD
 from .torque_timing import TorqueTimingError, check_lag
+
+#: Largest cond(Θ̂₁ᵀΘ̂₁) an identification can have: the fit refuses a regressor whose smallest singular value
+#: is under RANK_TOL of its largest (:func:`.least_squares.check_rank`) as rank-deficient.
+MAX_CONDITION = RANK_TOL ** -2
 
 @dataclass
 class IdentificationResult:
@@ -205,6 +210,10 @@ class IdentificationResult:
         condition = json_number(d.get("condition_number"), "condition_number")
         if not condition >= 1:
             raise ValueError(f"condition_number must be >= 1, got {condition!r}")
+        if condition > MAX_CONDITION:
+            raise ValueError(f"condition_number {condition!r} is above {MAX_CONDITION:.0e}, the most an "
+                             "identification can have: its regressor is rank-deficient and the parameters are "
+                             "not determined by the data")
         weighted = d.get("condition_number_channel_weighted")
         if weighted is not None:
             weighted = json_number(weighted, "condition_number_channel_weighted")

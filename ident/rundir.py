@@ -152,6 +152,37 @@ def check_status(meta: dict, source: str) -> None:
                                 "'running' or 'aborted: …')")
 
 
+def check_settings(meta: dict, source: str) -> None:
+    """The campaign and controller settings metadata.json records, where it records them, are ones a
+    campaign drives (:class:`.campaign.CampaignSettings`, :class:`.controller.ControllerSettings`). The
+    digital twin drives them again; a run whose settings are edited to something no campaign drives
+    (NaN, a string, a negative duration) did not come from one.
+
+    Raises:
+        RunDirectoryError: a setting refused or unknown (file and key named)."""
+    from dataclasses import fields
+
+    from .campaign import recorded_settings
+    from .controller import ControllerSettings
+
+    known = {f.name for f in fields(ControllerSettings)}     # a setting since retired is not driven again
+
+    def controller(values: dict) -> ControllerSettings:
+        return ControllerSettings(**{k: v for k, v in values.items() if k in known})
+
+    for key, read in (("settings", recorded_settings), ("controller", controller)):
+        if key not in meta:
+            continue
+        if not isinstance(meta[key], dict):
+            raise RunDirectoryError(f"{source}: '{key}' must be a table of settings")
+        try:
+            read(meta[key])
+        except TypeError as exc:
+            raise RunDirectoryError(f"{source}: '{key}' holds a setting no campaign knows: {exc}") from None
+        except ValueError as exc:
+            raise RunDirectoryError(f"{source}: {exc}") from None
+
+
 def step_signals(signals: Signals, name: str) -> Signals:
     """The rows of step ``name``.
 
@@ -182,7 +213,8 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     """Signals, data sheet and metadata of a run directory.
 
     Raises:
-        RunDirectoryError: a file is missing, or metadata.json's status or segments are not a campaign's;
+        RunDirectoryError: a file is missing, or metadata.json's status, segments or settings are not a
+        campaign's;
         RecordingError/DataSheetError: a file is invalid, signals.csv
         lacks rows (of a step the metadata says completed, or between two rows), a drive's signals are
         dead or disagree, or a torque or steering angle lies beyond the data sheet's limits
@@ -195,6 +227,7 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
     meta = read_json(run_dir / METADATA)
     sheet = datasheet_from_metadata(meta, str(run_dir / METADATA))
     check_status(meta, str(run_dir / METADATA))
+    check_settings(meta, str(run_dir / METADATA))
     signals = read_signals(run_dir / SIGNALS)
     check_coverage(signals, completed_steps(meta, str(run_dir / METADATA)), sheet.drive.cycle_time,
                    str(run_dir / SIGNALS))

@@ -258,6 +258,23 @@ def test_a_key_given_twice_in_a_json_file_is_refused(run_dir):
         load_run(run_dir)
 
 
+@pytest.mark.parametrize("key, setting, value, message", [
+    ("settings", "lane_distance", float("nan"), r"settings.lane_distance must be finite"),
+    ("settings", "steer_duration", -5.0, r"settings.steer_duration must be > 0"),
+    ("settings", "bogus", 1.0, r"'settings' holds a setting no campaign knows"),
+    ("controller", "torque_margin", "0.9", r"controller.torque_margin must be a number"),
+])
+def test_campaign_settings_no_campaign_drives_are_refused(run_dir, key, setting, value, message):
+    # the digital twin drives the recorded settings again: a run whose settings no campaign drives did not
+    # come from one
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    _edit_metadata(run_dir, **{key: {**meta.get(key, {}), setting: value}})
+    with pytest.raises(RunDirectoryError, match=rf"metadata.json: {message}"):
+        load_run(run_dir)
+    result = _cli("identify", run_dir)
+    assert result.exit_code == 2 and setting in result.output and "Traceback" not in result.output
+
+
 @pytest.mark.parametrize("value", ["2.5", "7", "-1"])
 def test_a_motion_mode_that_is_not_one_is_refused(run_dir, value):
     lines = (run_dir / "signals.csv").read_text().splitlines()
@@ -269,6 +286,21 @@ def test_a_motion_mode_that_is_not_one_is_refused(run_dir, value):
         read_signals(run_dir / "signals.csv")
 
 
+def test_a_row_in_another_motion_mode_than_its_step_is_refused(run_dir):
+    # each step is fitted with its first row's k: the rotation's rows relabelled mode 3 would fit mode 3's
+    # regressor to a rotation
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    rows = _rows_of(run_dir, "rotation")
+    for at in rows:
+        cells = lines[at].split(",")
+        cells[2] = "3"
+        lines[at] = ",".join(cells)
+    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=rf"signals.csv:{rows[0] + 1}: motion mode k = 3 inside step "
+                                             r"'rotation', which the metadata records in mode k = 4"):
+        load_run(run_dir)
+
+
 def test_a_complete_step_under_a_drifting_jittery_clock_is_complete():
     # a master whose SYNC period is 0.3 % off the nominal 2 ms, time stamps jittering by 50 µs: 30000 rows
     # over the step's 60.2 s are all there; two thirds of them are not
@@ -277,11 +309,14 @@ def test_a_complete_step_under_a_drifting_jittery_clock_is_complete():
     from qomni.ident.plausibility import check_coverage
 
     time = np.cumsum(np.full(30000, 0.002006) + np.random.default_rng(0).normal(0, 5e-5, 30000))
-    step = [{"name": "straight", "t_start": 0.0, "t_end": float(time[-1])}]
-    check_coverage(SimpleNamespace(time=time, step=np.array(["straight"] * 30000)), step, 0.002, "run")
+    step = [{"name": "straight", "k": 2, "t_start": 0.0, "t_end": float(time[-1])}]
+
+    def rows(n: int) -> SimpleNamespace:
+        return SimpleNamespace(time=time[:n], step=np.array(["straight"] * n), k=np.full(n, 2))
+
+    check_coverage(rows(30000), step, 0.002, "run")
     with pytest.raises(RecordingError, match="has 20000 of its 30000 rows"):
-        check_coverage(SimpleNamespace(time=time[:20000], step=np.array(["straight"] * 20000)), step, 0.002,
-                       "run")
+        check_coverage(rows(20000), step, 0.002, "run")
 
 
 def test_a_data_sheet_whose_cycle_time_is_not_the_recording_s_is_refused(run_dir):
@@ -408,6 +443,18 @@ def test_an_identification_in_another_unit_is_refused(run_dir):
     (run_dir / "identification.json").write_text(json.dumps(data))
     with pytest.raises(RunDirectoryError, match=r"parameters.m_ch.unit is 'g'; this model's m_ch is in kg"):
         load_identification(run_dir)
+
+
+def test_an_identification_whose_regressor_was_rank_deficient_is_refused(run_dir, tmp_path):
+    # no fit writes a condition number beyond its rank tolerance: parameters so undetermined by the data
+    # would be exported as an FMU that simulates nothing the vehicle does
+    data = json.loads((run_dir / "identification.json").read_text())
+    data["condition_number"] = 1e18
+    (run_dir / "identification.json").write_text(json.dumps(data))
+    with pytest.raises(RunDirectoryError, match=r"condition_number 1e\+18 is above 1e\+14.* rank-deficient"):
+        load_identification(run_dir)
+    result = _cli("export-fmu", run_dir / "identification.json", "--out", tmp_path / "m.fmu")
+    assert result.exit_code == 2 and "rank-deficient" in result.output and not (tmp_path / "m.fmu").exists()
 
 
 def test_out_that_is_a_file_and_a_negative_seed_are_refused(tmp_path):
