@@ -104,6 +104,8 @@ def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
     data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS),
                    "signals_sha256": file_sha256(run_dir / SIGNALS)}
+    if "vehicle" in meta and "datasheet" in meta:      # the vehicle the model belongs to (diagnosis)
+        data["run"].update(vehicle=meta["vehicle"], datasheet=meta["datasheet"])
     return result, data
 
 

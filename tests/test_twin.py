@@ -282,6 +282,48 @@ def test_the_reference_and_held_out_runs_are_other_runs_of_the_datas_vehicle(ide
             diagnose_paths(model, identified_run, simulate=False, **kwargs)
 
 
+def test_a_model_of_another_vehicle_is_refused_before_its_twin_runs(identified_run, tmp_path):
+    """Two vehicles differ in every parameter, and the diagnosis described that difference with the
+    hypothesis that fits it best (a 464 kg heavier vehicle's model on the prototype's run: a floor incline,
+    p = 2·10⁻⁶). identify records the vehicle's name and data sheet; a model of another name, geometry or drive
+    is refused by the API and by the CLI before the twin's campaign, unless --other-vehicle."""
+    import json
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from qomni.cli import app
+    from qomni.diagnosis.diagnose import Diagnosis, check_model_vehicle, diagnose_paths
+    from qomni.ident.rundir import RunDirectoryError
+
+    model = identified_run / "identification.json"
+    recorded = json.loads(model.read_text())["run"]
+    assert recorded["vehicle"] == "prototype" and recorded["datasheet"]["geometry"]["r"] == DataSheet.load().geometry.r
+    other = tmp_path / "other"
+    shutil.copytree(identified_run, other)
+    (other / "identification.json").unlink()
+    lines = (other / "signals.csv").read_text().splitlines()
+    (other / "signals.csv").write_text("\n".join(lines[:-1]) + "\n")         # another recording
+    meta = json.loads((other / "metadata.json").read_text())
+    (other / "metadata.json").write_text(json.dumps({**meta, "vehicle": "heavy_platform"}))
+    with pytest.raises(RunDirectoryError, match=r"identified on vehicle 'prototype', the data .* are a run of "
+                                                r"'heavy_platform' \(they differ in vehicle name"):
+        diagnose_paths(model, other, simulate=False)
+    result = CliRunner().invoke(app, ["diagnose", "--model", str(model), "--data", str(other), "--out",
+                                      str(tmp_path / "gap")])
+    assert result.exit_code == 2 and "--other-vehicle" in result.output and not (tmp_path / "gap").exists()
+    assert isinstance(diagnose_paths(model, other, simulate=False, other_vehicle=True), Diagnosis)
+    meta["datasheet"]["geometry"]["r"] = 0.2
+    (other / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(RunDirectoryError, match=r"they differ in geometry.r\)"):
+        check_model_vehicle(model, other)
+    legacy = tmp_path / "legacy.json"                  # no vehicle recorded, no metadata.json beside it
+    data = json.loads(model.read_text())
+    data["run"] = {k: v for k, v in data["run"].items() if k not in ("vehicle", "datasheet")}
+    legacy.write_text(json.dumps(data))
+    check_model_vehicle(legacy, other)
+
+
 def test_a_twin_data_sheet_that_is_not_the_datas_vehicle_is_refused(identified_run, tmp_path):
     from qomni.twin import twin_reference
 

@@ -25,18 +25,23 @@ def diagnose(
                                   "was identified on). Default: the model's digital twin, run with the "
                                   "data's campaign settings and kept in OUT/twin_reference."),
     datasheet: Optional[Path] = typer.Option(None, help="Data sheet of the twin (default: the data's)."),
+    other_vehicle: bool = typer.Option(False, "--other-vehicle", help="Diagnose against a model identified on "
+                                       "another vehicle (another data sheet name, geometry or drive): the gap "
+                                       "then holds the two vehicles' difference, which no effect describes."),
     twin_runs: int = typer.Option(1, "--twin-runs", min=1, help="Runs of the twin's campaign on independent "
                                   "noise draws, kept in OUT/twin_reference, OUT/twin_reference_1, …; the data "
                                   "are diagnosed beyond their mean residual, whose noise shrinks by √runs."),
 ):
     """Diagnose the sim-to-real gap: where model and data differ, which unmodelled effect explains it,
     how far the held-out residual shrinks once it is added (gap.json, report.html)."""
-    from qomni.diagnosis.diagnose import diagnose_paths
+    from qomni.diagnosis.diagnose import check_model_vehicle, diagnose_paths, identified_on
     from qomni.diagnosis.paired import PairingError
     from qomni.diagnosis.report import reference_parameters, unnamed_further, write_report
 
     if out.exists() and not out.is_dir():
         fail(f"--out {out} is a file, not a directory")
+    if not other_vehicle and not guarded(lambda: identified_on(model, data)):
+        guarded(lambda: check_model_vehicle(model, data))          # before the twin's campaign runs
     repeats: list[Path] = []
     if reference is None:
         reference, *repeats = _twin_references(model, data, out / "twin_reference", datasheet, twin_runs)
@@ -46,7 +51,8 @@ def diagnose(
         fail(f"--reference {reference} is not a run directory")
     try:
         d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference,
-                                           reference_repeats=repeats, simulate=simulate))
+                                           other_vehicle=other_vehicle, reference_repeats=repeats,
+                                           simulate=simulate))
     except PairingError as exc:      # repeats of a twin whose campaign does not pair with the data's
         fail(str(exc))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
