@@ -9,13 +9,13 @@ import hashlib
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from qomni.conventions import WHEELS
-from qomni.datasheet import DataSheet, DataSheetError
+from qomni.datasheet import DataSheet, DataSheetError, vehicle_differences
 
 from .result import IdentificationResult
 from .recording import Signals, read_signals
@@ -315,12 +315,45 @@ def b_w_source(run_dir: Path, sheet: DataSheet) -> tuple[float, str]:
     """B_w for (24): the single-axis result of this run if there is one, else the data sheet's.
 
     Raises:
-        RunDirectoryError: ``single_axis.json`` has no positive, finite ``pooled.B_w.value``."""
+        RunDirectoryError: ``single_axis.json`` has no positive, finite ``pooled.B_w.value``, or was measured
+        on another vehicle (:func:`check_lifted_vehicle`)."""
     path = run_dir / SINGLE_AXIS_JSON
     if path.exists():
-        value, _ = _measured(path, read_json(path), ("pooled", "B_w"), positive=True, with_std=False)
+        data = read_json(path)
+        _check_lifted_of_run(path, data, run_dir)
+        value, _ = _measured(path, data, ("pooled", "B_w"), positive=True, with_std=False)
         return value, "single-axis identification (lifted vehicle)"
     return sheet.nominal.B_w, "data sheet"
+
+
+def check_lifted_vehicle(path: Path, data: dict, sheet: DataSheet) -> None:
+    """``single_axis.json`` (``data``, read from ``path``) measured the wheels of ``sheet``'s vehicle: the
+    vehicle name and data sheet geometry and drive it records are ``sheet``'s. A campaign replaced with
+    ``--force --no-single-axis`` keeps the lifted measurement beside it, and another vehicle's wheels would
+    set B_w and the wheels' friction without a word. A file that does not record its vehicle is taken as
+    the run's.
+
+    Raises: RunDirectoryError: names both vehicles and what differs."""
+    if not isinstance(data.get("vehicle"), str):
+        return
+    differ = [f"vehicle name ('{data['vehicle']}' against '{sheet.name}')"] if data["vehicle"] != sheet.name else []
+    if isinstance(data.get("datasheet"), dict):
+        tables = {"nominal": asdict(sheet.nominal), **data["datasheet"]}
+        differ += vehicle_differences(DataSheet.from_tables(tables, data["vehicle"], f"{path} datasheet"), sheet)
+    if differ:
+        raise RunDirectoryError(f"{path}: measured on the lifted wheels of '{data['vehicle']}', the run is of "
+                                f"'{sheet.name}' (they differ in {', '.join(differ)}): measure this vehicle's "
+                                "wheels (qomni single-axis) or remove the file")
+
+
+def _check_lifted_of_run(path: Path, data: dict, run_dir: Path) -> None:
+    """:func:`check_lifted_vehicle` against the vehicle ``run_dir``'s metadata.json records, where it does."""
+    meta_path = run_dir / METADATA
+    if not meta_path.is_file():
+        return
+    meta = read_json(meta_path)
+    if isinstance(meta.get("vehicle"), str) and "datasheet" in meta:
+        check_lifted_vehicle(path, data, datasheet_from_metadata(meta, str(meta_path)))   # named as recorded
 
 
 #: Parameters of p₁ that the single-axis run measures on lifted wheels (``single_axis.json``, pooled).
@@ -348,11 +381,12 @@ def read_lifted(run_dir: str | Path) -> LiftedMeasurement | None:
     Raises:
         RunDirectoryError: a value or std is missing or not finite, a B_w not positive, a friction
             negative or a std not positive, a breakaway excess not finite or below −1 (the message names
-            the file and key)."""
+            the file and key); the wheels of another vehicle (:func:`check_lifted_vehicle`)."""
     path = Path(run_dir) / SINGLE_AXIS_JSON
     if not path.exists():
         return None
     data = read_json(path)
+    _check_lifted_of_run(path, data, Path(run_dir))
     breakaway = None
     if isinstance(data.get("breakaway"), dict) and data["breakaway"].get("excess") is not None:
         excess, std = _measured(path, data, ("breakaway", "excess"), positive=False, signed=True)

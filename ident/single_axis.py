@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -150,6 +150,8 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: floa
         data["breakaway"] = ramps.to_json_dict()
     data["torque_lag"] = {"value": float(torque_lag), "unit": "s"}
     data["spikes"] = spikes.to_json_dict()
+    data["vehicle"] = sheet.name             # whose wheels these are: a campaign of another vehicle refuses them
+    data["datasheet"] = {"geometry": asdict(sheet.geometry), "drive": asdict(sheet.drive)}
     write_json(run_dir / SINGLE_AXIS_JSON, data)
     return result
 

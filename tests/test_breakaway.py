@@ -24,6 +24,8 @@ def _lifted_breakaway(tmp_path, effects: dict, seed: int = 2) -> tuple[float, fl
                           effects=EffectSet.from_dict(effects)) as vehicle:
         run_single_axis(vehicle, SHEET, tmp_path, plan_single_axis())
     identify_single_axis(tmp_path, SHEET)
+    recorded = json.loads((tmp_path / "single_axis.json").read_text())     # whose wheels: the campaign checks
+    assert recorded["vehicle"] == SHEET.name and recorded["datasheet"]["drive"]["i_G"] == SHEET.drive.i_G
     return read_lifted(tmp_path).breakaway
 
 

@@ -125,6 +125,30 @@ def _single_axis(pooled: dict | None = None, wheels: dict | None = None) -> str:
                            w: {"B_w": {"value": 0.12, "std": 0.0008}, **_LIFTED} for w in ("fl", "rl", "fr", "rr")}})
 
 
+def test_lifted_wheels_of_another_vehicle_are_refused(run_dir, tmp_path):
+    # a campaign replaced with --force --no-single-axis keeps single_axis.json beside it: another vehicle's
+    # wheels would set B_w and the wheels' friction
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    lifted = {**json.loads(_single_axis()), "vehicle": meta["vehicle"],
+              "datasheet": {k: meta["datasheet"][k] for k in ("geometry", "drive")}}
+    (run_dir / "single_axis.json").write_text(json.dumps(lifted))
+    assert read_lifted(run_dir).friction["d_cw"] == (3.95, 0.014)
+    (run_dir / "single_axis.json").write_text(json.dumps({**lifted, "vehicle": "heavy_platform"}))
+    with pytest.raises(RunDirectoryError, match=r"single_axis.json: measured on the lifted wheels of "
+                                                r"'heavy_platform', the run is of 'prototype' \(they differ in "
+                                                "vehicle name"):
+        read_lifted(run_dir)
+    with pytest.raises(RunDirectoryError, match="lifted wheels of 'heavy_platform'"):
+        b_w_source(run_dir, DataSheet.load())
+    result = _cli("campaign", "--quick", "--no-single-axis", "--force", "--out", run_dir)
+    assert result.exit_code == 2 and "lifted wheels" in result.output
+    assert (run_dir / "signals.csv").exists()                            # refused before --force removed it
+    lifted["datasheet"]["geometry"]["r"] = 0.2
+    (run_dir / "single_axis.json").write_text(json.dumps(lifted))
+    with pytest.raises(RunDirectoryError, match=r"they differ in geometry.r\)"):
+        read_lifted(run_dir)
+
+
 @pytest.mark.parametrize("key,field,value,message", [
     ("d_cw", "value", -0.1, "pooled.d_cw must be a finite, non-negative value"),
     ("d_vw", "std", 0.0, "pooled.d_vw must be a finite, non-negative value with a positive"),

@@ -13,8 +13,8 @@ from rich.table import Table
 from .app import app
 from .console import console, fail, guarded, run_with_progress
 from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICATION, FIG_VALIDATION,
-                                IDENTIFICATION_JSON, METADATA, SINGLE_AXIS_DIR, SINGLE_AXIS_FILES, VALIDATION_JSON,
-                                read_json, read_lifted)
+                                IDENTIFICATION_JSON, METADATA, SINGLE_AXIS_DIR, SINGLE_AXIS_FILES, SINGLE_AXIS_JSON,
+                                VALIDATION_JSON, check_lifted_vehicle, read_json, read_lifted)
 
 from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
                       PLANT_PROCESS_HELP, vehicle_link)
@@ -97,6 +97,9 @@ def campaign(
             settings = replace(settings, excitation=excitation)
         except ValueError as exc:
             fail(str(exc))
+    kept = out / SINGLE_AXIS_JSON
+    if not single_axis and kept.is_file():     # kept beside the new campaign: it must be this vehicle's wheels
+        guarded(lambda: check_lifted_vehicle(kept, read_json(kept), sheet))
     prepare_out(out, CAMPAIGN_FILES + (SINGLE_AXIS_FILES if single_axis else ()), force)
     started = time.perf_counter()
     if single_axis:
