@@ -46,12 +46,32 @@ class FmuSlave:
 
     def __init__(self, path: str | os.PathLike, start_values: dict | None = None, start_time: float = 0.0,
                  instance_name: str = "plant", event_mode: bool = False):
+        self._tmp = None
+        self.fmu = None
+        try:
+            self._start(Path(path), start_values, start_time, instance_name, event_mode)
+        except BaseException:
+            self._discard()         # an instance refused at initialisation leaves neither it nor its files
+            raise
+
+    def _discard(self) -> None:
+        """Free an instance that failed to start (no terminate: it never ran) and remove its files."""
+        fmu, self.fmu = self.fmu, None
+        if fmu is not None:
+            try:
+                fmu.freeInstance()
+            except Exception:  # noqa: BLE001 - the start's own error is the one to report
+                pass
+        if self._tmp:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def _start(self, path: Path, start_values: dict | None, start_time: float, instance_name: str,
+               event_mode: bool) -> None:
         from fmpy import extract, read_model_description
         from fmpy.fmi2 import FMU2Slave
         from fmpy.fmi3 import FMU3Slave
 
-        path = Path(path)
-        self._tmp = None
         if path.is_dir():
             directory = str(path)
         else:
@@ -63,10 +83,12 @@ class FmuSlave:
         cls = FMU2Slave if self.version == 2 else FMU3Slave
         self.fmu = cls(guid=md.guid, unzipDirectory=directory, modelIdentifier=md.coSimulation.modelIdentifier,
                        instanceName=instance_name)
+        fmu, self.fmu = self.fmu, None
         if event_mode:
-            self.fmu.instantiate(eventModeUsed=True)
+            fmu.instantiate(eventModeUsed=True)
         else:
-            self.fmu.instantiate()
+            fmu.instantiate()
+        self.fmu = fmu
         if self.version == 2:
             self.fmu.setupExperiment(startTime=start_time)
             self.fmu.enterInitializationMode()
@@ -119,9 +141,11 @@ class FmuSlave:
     def close(self) -> None:
         """Terminate and free the instance; remove the extracted files."""
         if self.fmu is not None:
-            self.fmu.terminate()
-            self.fmu.freeInstance()
-            self.fmu = None
+            fmu, self.fmu = self.fmu, None
+            try:
+                fmu.terminate()
+            finally:
+                fmu.freeInstance()
         if self._tmp:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None

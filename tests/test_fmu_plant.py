@@ -257,7 +257,10 @@ def test_initial_state_parameters(fmus):
 
 
 @pytest.mark.parametrize("version", [2, 3])
-def test_bad_input_and_initial_state_are_errors(fmus, version, capsys):
+def test_bad_input_and_initial_state_are_errors(fmus, version, capsys, tmp_path, monkeypatch):
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))   # where the slaves extract their FMU
     with FmuSlave(fmus[version]) as s:
         with pytest.raises(FMICallException):
             s.set_real(s.refs(MOTOR_TORQUE), [np.nan, 0, 0, 0])
@@ -268,6 +271,7 @@ def test_bad_input_and_initial_state_are_errors(fmus, version, capsys):
     with pytest.raises(FMICallException):
         FmuSlave(fmus[version], {"alpha_l0": 0.3, "x_ch_dot0": 0.5})
     assert "configuration" in capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []          # a refused instance leaves no extracted FMU behind
 
 
 @pytest.mark.skipif(shutil.which("cmake") is None, reason="needs cmake")
