@@ -978,7 +978,8 @@ def check_model_vehicle(model_path: str | Path, data_dir: str | Path) -> None:
     name, sheet = recorded
     meta = read_json(source)
     data_name = meta.get("vehicle")
-    differ = ([f"vehicle name ('{name}' against '{data_name}')"] if name != data_name else []) + \
+    named = isinstance(data_name, str) and name != data_name     # a run that records no name: its data sheet
+    differ = ([f"vehicle name ('{name}' against '{data_name}')"] if named else []) + \
         vehicle_differences(sheet, datasheet_from_metadata(meta, str(source)))
     if differ:
         raise RunDirectoryError(

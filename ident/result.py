@@ -18,6 +18,7 @@ from .torque_timing import TorqueTimingError, check_lag
 #: is under RANK_TOL of its largest (:func:`.least_squares.check_rank`) as rank-deficient.
 MAX_CONDITION = RANK_TOL ** -2
 
+
 @dataclass
 class IdentificationResult:
     """Result of :func:`estimate`.
