@@ -138,6 +138,36 @@ def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_i
         load_run(out)
 
 
+def test_a_log_that_lost_a_sync_decodes_every_cycle_at_its_time(session, tmp_path):
+    """A SYNC frame the logger lost: the next cycle's synchronous TPDOs come a second time before any SYNC,
+    which CiA 301 forbids, so the cycle boundary is restored there and every later row keeps its time (not
+    one cycle early). The same frame logged twice is dropped, not taken for a cycle."""
+    _, logs, _, _ = session
+
+    def decode(lines: list[str]) -> tuple[list, DecodeReport]:
+        log = tmp_path / "edited.log"
+        log.write_text("\n".join(lines) + "\n")
+        report = DecodeReport()
+        return list(decode_log(log, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                               report=report)), report
+
+    lines = logs[1].read_text().splitlines()
+    intact, _ = decode(lines)
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    lossy = lines[:syncs[10]] + lines[syncs[10] + 1:]
+    again = [i for i, line in enumerate(lossy) if " 183#" in line][20]
+    lossy = lossy[:again + 1] + [lossy[again]] + lossy[again + 1:]
+    cycles, report = decode(lossy)
+    assert report.sync_restored == 1 and report.duplicates == 1 and report.incomplete == 0
+    assert len(cycles) == len(intact) == N_CYCLES
+    for got, want in zip(cycles, intact):
+        assert got.measurement.time == want.measurement.time
+        np.testing.assert_array_equal(got.measurement.motor_position, want.measurement.motor_position)
+        np.testing.assert_array_equal(got.motor_torque_cmd, want.motor_torque_cmd)
+    result = CliRunner().invoke(app, ["decode", str(tmp_path / "edited.log"), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0 and "1 SYNC missing from the log restored" in " ".join(result.output.split())
+
+
 def test_replay_of_the_master_frames_reproduces_the_run(session):
     """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
     from qomni.hil.tools.recorder import sent_by_master as _sent_by_master

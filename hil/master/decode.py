@@ -18,7 +18,11 @@ Per cycle (CiA 301 SYNC semantics, docs/conventions.md):
   expedited SDO upload response of 0x6076:00, as every master reads it) if present, else from a DCF's
   ParameterValue, else from the caller (data sheet).
 
-A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeReport.incomplete`). A log cut
+A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeReport.incomplete`). A SYNC
+missing from the log (the logger lost it) shows as a synchronous TPDO (transmission type 0–240, sent at
+most once per SYNC) sent again before the next SYNC: the cycle boundary is restored there and counted
+(:attr:`DecodeReport.sync_restored`), so the later cycles keep their time; the same frame logged twice
+(identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). A log cut
 while it was written (a BLF shorter than its header announces, a text log whose last line has no line
 end) is decoded up to the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
@@ -48,6 +52,16 @@ from ..units import device_measurement, unwrap32
 
 
 
+#: Largest TPDO transmission type (0x1800 + n, sub-index 2) that is synchronous: 0 acyclic, 1–240 every
+#: n-th SYNC. Such a TPDO is sent only after a SYNC and at most once per SYNC (CiA 301, 7.2.2.2).
+MAX_SYNCHRONOUS_TYPE = 240
+#: Transmission type of an event-driven TPDO (device profile), taken where a file gives none.
+EVENT_DRIVEN = 0xFF
+#: Largest difference of time stamps (s) of one frame logged twice: a log's resolution (candump -L: 1 µs).
+#: The next cycle's frame is stamped later, even in a lock-step recording whose cycles are not real time.
+DUPLICATE_STAMP = 1e-6
+
+
 class DecodeError(ValueError):
     """The log or the mapping files cannot be decoded: says which file and what is missing."""
 
@@ -63,11 +77,14 @@ class DecodedCycle:
 
 @dataclass
 class DecodeReport:
-    """Counts of a decode: frames read, cycles decoded, cycles skipped as incomplete, rated torque used."""
+    """Counts of a decode: frames read, cycles decoded, cycles skipped as incomplete, SYNCs missing from
+    the log and restored, a logger's duplicate frames dropped, rated torque used."""
 
     frames: int = 0
     cycles: int = 0
     incomplete: int = 0
+    sync_restored: int = 0
+    duplicates: int = 0
     sessions: int = 0
     rated_torque: list = field(default_factory=list)
     rated_torque_source: str = ""
@@ -134,6 +151,7 @@ class _Mapping:
 
     def __init__(self, files: dict[int, Path]):
         self.tpdos: dict[int, tuple[_Pdo, list]] = {}
+        self.synchronous: set[int] = set()          # TPDOs sent at most once per SYNC (transmission type ≤ 240)
         self.rpdo_torque: dict[int, tuple[int, PdoCodec, int]] = {}
         self.rated_mnm: dict[int, int] = {}
         self.sync_cob_id = SYNC_COB_ID
@@ -165,6 +183,8 @@ class _Mapping:
                 sinks = [(inputs[k], index) if k in inputs else None for k in codec.keys]
                 found.update(k for k in codec.keys if k in inputs)
                 self.tpdos[cob_id & 0x7FF] = (_Pdo(index, codec), sinks)
+                if values.get((comm, 2), EVENT_DRIVEN) <= MAX_SYNCHRONOUS_TYPE:
+                    self.synchronous.add(cob_id & 0x7FF)
             needed = set(inputs) - {(0x6041, 0)} - found
             if needed:
                 raise DecodeError(f"{path}: node {node_id} maps "
@@ -307,6 +327,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
     pending_cmd = np.zeros(4)
     cycle = None          # cycles since NMT start; None before the first start
     rx: dict[int, bytes] = {}
+    seen_at: dict[int, float] = {}
     unwrap = None
 
     for msg in itertools.chain(reader, [None]):          # None: the end closes the last cycle
@@ -315,7 +336,14 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
                 continue
         cob = sync_id if msg is None else msg.arbitration_id
-        if cob == sync_id:
+        lost_sync = False
+        if cycle is not None and cob in rx and cob in mapping.synchronous:
+            if bytes(msg.data) == rx[cob] and abs(msg.timestamp - seen_at[cob]) <= DUPLICATE_STAMP:
+                report.duplicates += 1                   # the logger wrote one frame twice
+                continue
+            lost_sync = True                             # sent again: the SYNC between the two is not in the log
+            report.sync_restored += 1
+        if cob == sync_id or lost_sync:
             if cycle is not None and rx:
                 out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, encoder_increments,
                             steering_sensor_bits)
@@ -329,12 +357,15 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             cmd = pending_cmd.copy()
             if cycle is not None:
                 cycle += 1
+        if cob == sync_id:
+            pass
         elif cob == 0x000 and len(msg.data) == 2 and msg.data[0] == _NMT_START:
             if cycle is None or cycle > 0:
                 report.sessions += 1
             cycle, unwrap, rx = 0, None, {}
         elif cob in mapping.tpdos:
             rx[cob] = bytes(msg.data)
+            seen_at[cob] = msg.timestamp
         elif cob in mapping.rpdo_torque:
             drive, codec, slot = mapping.rpdo_torque[cob]
             if len(msg.data) >= codec.size:

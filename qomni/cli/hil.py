@@ -266,12 +266,16 @@ def decode(
                               "nominal": asdict(sheet.nominal)}, "segments": []}
     meta = dict(meta, source=f"decoded from {log}", decoded={
         "log": str(log), "frames": report.frames, "cycles": report.cycles, "rows": rows,
-        "incomplete_cycles": report.incomplete, "sessions": report.sessions, "warnings": report.warnings,
+        "incomplete_cycles": report.incomplete, "sync_restored": report.sync_restored,
+        "duplicate_frames": report.duplicates, "sessions": report.sessions, "warnings": report.warnings,
         "rated_torque": {"value": report.rated_torque, "unit": "N m", "source": report.rated_torque_source},
         "mapping": {str(k): str(v) for k, v in files.items()}})
     write_json(out / METADATA, meta)
     console.print(f"decoded {report.cycles} cycles ({report.incomplete} incomplete skipped) from "
                   f"{report.frames} frames into {out / SIGNALS}: {rows} rows"
+                  + (f"; {report.sync_restored} SYNC missing from the log restored where a synchronous TPDO "
+                     "came again" if report.sync_restored else "")
+                  + (f"; {report.duplicates} frame(s) logged twice dropped" if report.duplicates else "")
                   + ("" if segments else "; no --metadata segments, so every row is step 'recorded' "
                      "(qomni identify needs the campaign's step names)")
                   + ("; the rows of the skipped cycles are missing, and every reader of the run refuses it, "
