@@ -27,11 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from qomni.conventions import P1_NAMES
-from qomni.datasheet import DataSheet, DataSheetError, vehicle_differences
+from qomni.datasheet import vehicle_differences
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
-from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError, datasheet_from_metadata,
-                               file_sha256, load_identification, load_repaired_run, read_json, read_lifted)
+from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError,
+                               check_identification_vehicle, datasheet_from_metadata, file_sha256,
+                               load_identification, load_repaired_run, read_json, read_lifted)
 from qomni.ident.campaign import VALIDATION_STEP
 from qomni.ident.setpoint_lag import setpoint_lag
 from qomni.ident.torque_timing import model_lag, shift_torque
@@ -941,52 +942,22 @@ def diagnose_paths(model_path: str | Path, data_dir: str | Path, holdout_dir: st
                     model_source=str(model_path), **kwargs)
 
 
-def model_vehicle(model_path: str | Path) -> tuple[str, DataSheet] | None:
-    """The vehicle a model was identified on: its name and data sheet, from ``identification.json``'s
-    ``run.vehicle`` and ``run.datasheet`` (``qomni identify`` records them), else from the
-    ``metadata.json`` beside it; None where neither records them.
-
-    Raises: RunDirectoryError: a recorded data sheet that does not read."""
-    path = Path(model_path)
-    file = path / IDENTIFICATION_JSON if path.is_dir() else path
-    run = read_json(file).get("run", {})
-    if isinstance(run, dict) and isinstance(run.get("vehicle"), str) and isinstance(run.get("datasheet"), dict):
-        try:
-            return run["vehicle"], DataSheet.from_tables(run["datasheet"], run["vehicle"], f"{file} run.datasheet")
-        except DataSheetError as exc:
-            raise RunDirectoryError(str(exc)) from None
-    beside = file.parent / METADATA
-    if beside.is_file():
-        meta = read_json(beside)
-        if isinstance(meta.get("vehicle"), str) and "datasheet" in meta:
-            return meta["vehicle"], datasheet_from_metadata(meta, str(beside))
-    return None
-
-
 def check_model_vehicle(model_path: str | Path, data_dir: str | Path) -> None:
     """The model was identified on the data's vehicle: the same data sheet name ([vehicle] name, recorded
-    as metadata.json's ``vehicle``) and the same data sheet geometry and drive. Two vehicles differ in
-    every parameter; the diagnosis describes that difference with the hypothesis that fits it best (a model
-    of a vehicle 464 kg heavier than the data's named a floor incline at p = 2·10⁻⁶) instead of saying so.
-    A model whose vehicle is not recorded is taken as the data's.
+    as metadata.json's ``vehicle``) and the same data sheet geometry and drive
+    (:func:`qomni.ident.rundir.check_identification_vehicle`). Two vehicles differ in every parameter; the
+    diagnosis describes that difference with the hypothesis that fits it best (a model of a vehicle 464 kg
+    heavier than the data's named a floor incline at p = 2·10⁻⁶) instead of saying so.
 
     Raises: RunDirectoryError: names both vehicles and what differs."""
-    recorded = model_vehicle(model_path)
     source = Path(data_dir) / METADATA
-    if recorded is None or not source.is_file():       # a data run without metadata is refused by its reader
+    if not source.is_file():                         # a data run without metadata is refused by its reader
         return
-    name, sheet = recorded
     meta = read_json(source)
-    data_name = meta.get("vehicle")
-    named = isinstance(data_name, str) and name != data_name     # a run that records no name: its data sheet
-    differ = ([f"vehicle name ('{name}' against '{data_name}')"] if named else []) + \
-        vehicle_differences(sheet, datasheet_from_metadata(meta, str(source)))
-    if differ:
-        raise RunDirectoryError(
-            f"model {model_path}: identified on vehicle '{name}', the data {data_dir} are a run of "
-            f"'{data_name}' (they differ in {', '.join(differ)}). The gap between two vehicles is no unmodelled "
-            "effect: diagnose a run against a model of its own vehicle (qomni identify it), or give "
-            "--other-vehicle to compare the two")
+    check_identification_vehicle(
+        model_path, datasheet_from_metadata(meta, str(source)), meta.get("vehicle"), f"the data {data_dir}",
+        "the gap between two vehicles is no unmodelled effect: diagnose a run against a model of its own "
+        "vehicle (qomni identify it), or give --other-vehicle to compare the two")
 
 
 def identified_on(model_path: str | Path, data_dir: str | Path) -> bool:

@@ -19,8 +19,8 @@ from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correl
                              identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
-                     RunDirectoryError, b_w_source, file_sha256, load_identification, load_repaired_run,
-                     read_json, require_complete, write_json)
+                     RunDirectoryError, b_w_source, check_identification_vehicle, file_sha256,
+                     load_identification, load_repaired_run, read_json, require_complete, write_json)
 from .instruments import simulated_instruments
 from .single_axis import identify_single_axis
 from .least_squares import IdentifiabilityError
@@ -128,10 +128,15 @@ def load_corrected_run(run_dir: str | Path, model: IdentificationResult | None =
 
 
 def validate_run(run_dir: str | Path) -> ValidationResult:
-    """Validate ``identification.json`` on the lane change and write ``validation.json``."""
+    """Validate ``identification.json`` on the lane change and write ``validation.json``.
+
+    Raises: RunDirectoryError: a file missing or invalid, the lane change not completed, a model that is
+    not physical, or one identified on another vehicle (:func:`.rundir.check_identification_vehicle`)."""
     run_dir = Path(run_dir)
     result = load_identification(run_dir)
     signals, sheet, meta = load_corrected_run(run_dir, result)
+    check_identification_vehicle(run_dir / IDENTIFICATION_JSON, sheet, meta.get("vehicle"), f"the run {run_dir}",
+                                 "validate a model on a run of its own vehicle")
     require_complete(meta, (VALIDATION_STEP,), str(run_dir / METADATA))
     if result.not_physical():
         raise RunDirectoryError(f"{run_dir / IDENTIFICATION_JSON}: the model is not physical "

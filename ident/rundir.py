@@ -402,6 +402,50 @@ def read_lifted(run_dir: str | Path) -> LiftedMeasurement | None:
     return LiftedMeasurement(friction, wheels, breakaway)
 
 
+def identification_vehicle(path: str | Path) -> tuple[str, DataSheet] | None:
+    """The vehicle an identification belongs to: its name and data sheet, from ``identification.json``'s
+    ``run.vehicle`` and ``run.datasheet`` (``qomni identify`` records them), else from the run's
+    ``metadata.json`` beside it; None where neither records them.
+
+    Raises: RunDirectoryError: a recorded data sheet that does not read (file and key named)."""
+    path = Path(path)
+    file = path / IDENTIFICATION_JSON if path.is_dir() else path
+    run = read_json(file).get("run", {})
+    if isinstance(run, dict) and isinstance(run.get("vehicle"), str) and isinstance(run.get("datasheet"), dict):
+        try:
+            return run["vehicle"], DataSheet.from_tables(run["datasheet"], run["vehicle"], f"{file} run.datasheet")
+        except DataSheetError as exc:
+            raise RunDirectoryError(str(exc)) from None
+    beside = file.parent / METADATA
+    if beside.is_file():
+        meta = read_json(beside)
+        if isinstance(meta.get("vehicle"), str) and "datasheet" in meta:
+            return meta["vehicle"], datasheet_from_metadata(meta, str(beside))
+    return None
+
+
+def check_identification_vehicle(path: str | Path, sheet: DataSheet, name: str | None, other: str,
+                                 advice: str) -> None:
+    """The identification at ``path`` belongs to the vehicle of ``sheet``: the same data sheet geometry and
+    drive, and where ``name`` is given (a run's recorded vehicle) the same vehicle name. Its parameters hold
+    for the vehicle they were identified on; simulated, exported or compared on another (another wheel
+    radius, gear ratio or axle distance, another vehicle's run) they give another vehicle's behaviour
+    without a word. An identification that records no vehicle is taken as ``sheet``'s.
+
+    Args: ``other`` names the other side in the message ("the data RUN", "--vehicle FILE"); ``advice`` ends it.
+    Raises: RunDirectoryError: names both vehicles and what differs."""
+    recorded = identification_vehicle(path)
+    if recorded is None:
+        return
+    own, own_sheet = recorded
+    differ = [f"vehicle name ('{own}' against '{name}')"] if isinstance(name, str) and name != own else []
+    differ += vehicle_differences(own_sheet, sheet)
+    if differ:
+        raise RunDirectoryError(f"{path}: identified on vehicle '{own}', {other} is "
+                                f"{repr(name) if name else 'another data sheet'} (they differ in "
+                                f"{', '.join(differ)}): {advice}")
+
+
 def load_identification(path: str | Path) -> IdentificationResult:
     """Read ``identification.json`` (a file or the run directory holding it)."""
     path = Path(path)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from qomni.emulator.description import VehicleDescription
-from qomni.ident.rundir import COMPARISON_JSON, load_identification, write_json
+from qomni.ident.rundir import COMPARISON_JSON, check_identification_vehicle, load_identification, write_json
 
 
 
@@ -17,10 +17,14 @@ def compare_with_truth(run_dir: str | Path, description: VehicleDescription) -> 
     Writes ``comparison.json`` into ``run_dir`` and returns its content.
 
     Raises:
-        RunDirectoryError: no identification.json in ``run_dir``.
+        RunDirectoryError: no identification.json in ``run_dir``, or one identified on another vehicle than
+        ``description``'s (:func:`qomni.ident.rundir.check_identification_vehicle`).
     """
     run_dir = Path(run_dir)
     result = load_identification(run_dir)
+    check_identification_vehicle(run_dir, description.datasheet, description.name,
+                                 f"the described vehicle {description.source}",
+                                 "compare with the description of the vehicle the run drove (--vehicle)")
     truth = description.truth
     rows = {}
     for name, value in result.values.items():

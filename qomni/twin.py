@@ -48,8 +48,8 @@ from qomni.emulator.description import Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
 from qomni.ident.result import IdentificationResult
 from qomni.ident.recording import RecordingError
-from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, RunDirectoryError, datasheet_from_metadata,
-                                file_sha256, load_identification, load_run, read_json)
+from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, RunDirectoryError, check_identification_vehicle,
+                                datasheet_from_metadata, file_sha256, load_identification, load_run, read_json)
 
 if TYPE_CHECKING:                   # the campaign is imported where a twin runs, not on import
     from qomni.ident.campaign import CampaignSettings
@@ -158,11 +158,16 @@ def write_twin(identification: str | Path, out: str | Path, datasheet: str | Pat
     metadata.json.
 
     Raises:
-        RunDirectoryError: identification.json or metadata.json missing or invalid.
+        RunDirectoryError: identification.json or metadata.json missing or invalid; the identification
+            belongs to another vehicle than the data sheet's (:func:`.ident.rundir.check_identification_vehicle`).
         DataSheetError: the given data sheet is invalid. TwinError: a parameter is not physical.
     """
     result = load_identification(identification)
     sheet = _sheet_for(Path(identification), datasheet)
+    run = Path(identification) if Path(identification).is_dir() else Path(identification).parent
+    name = None if datasheet is not None else read_json(run / METADATA).get("vehicle")
+    check_identification_vehicle(identification, sheet, name, f"--datasheet {datasheet}" if datasheet is not None
+                                 else f"the run {run}", "a twin is the vehicle its model was identified on")
     text = twin_toml(twin_description(result, sheet, str(identification)))
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")

@@ -168,6 +168,15 @@ def test_a_log_that_lost_a_sync_decodes_every_cycle_at_its_time(session, tmp_pat
     assert result.exit_code == 0 and "1 SYNC missing from the log restored" in " ".join(result.output.split())
 
 
+def test_a_cycle_time_other_than_the_one_the_master_set_is_refused(session):
+    """The time is the SYNC count × T_s; the log holds the 0x1006 the master wrote to its nodes, and a T_s
+    from another data sheet would stretch every time and rate."""
+    _, logs, _, _ = session
+    with pytest.raises(DecodeError, match=r"set the communication cycle period 0x1006 of node 1 to 2000 µs; the "
+                                          r"cycle time given is 4000 µs"):
+        list(decode_log(logs[1], encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=2 * T_S))
+
+
 def test_replay_of_the_master_frames_reproduces_the_run(session):
     """The recorded master frames, replayed onto a fresh emulator, drive it through the same states."""
     from qomni.hil.tools.recorder import sent_by_master as _sent_by_master

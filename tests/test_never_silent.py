@@ -481,6 +481,47 @@ def test_an_identification_whose_regressor_was_rank_deficient_is_refused(run_dir
     assert result.exit_code == 2 and "rank-deficient" in result.output and not (tmp_path / "m.fmu").exists()
 
 
+def test_a_model_of_another_vehicle_is_never_validated_exported_twinned_or_compared(run_dir, tmp_path):
+    # its parameters hold for the vehicle they were identified on: on another vehicle's run, or with another
+    # wheel radius or gear ratio, each command would give that other vehicle's behaviour without a word
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    model = json.loads((run_dir / "identification.json").read_text())
+    model.setdefault("run", {}).update(vehicle="heavy_platform", datasheet=meta["datasheet"])
+    (run_dir / "identification.json").write_text(json.dumps(model))
+    for args in (["validate", run_dir], ["export-fmu", run_dir, "--out", tmp_path / "m.fmu"],
+                 ["twin", run_dir, "--out", tmp_path / "t.toml"], ["compare", run_dir]):
+        result = _cli(*args)
+        text = " ".join(result.output.split())
+        assert result.exit_code == 2, args
+        assert "identified on vehicle 'heavy_platform'" in text and "'prototype'" in text, args
+    model["run"]["vehicle"] = meta["vehicle"]
+    (run_dir / "identification.json").write_text(json.dumps(model))
+    sheet = tmp_path / "other.toml"
+    sheet.write_text((Path(__file__).parents[1] / "qomni" / "data" / "prototype_datasheet.toml").read_text()
+                     .replace("i_G = 25.0", "i_G = 50.0"))
+    for args in (["export-fmu", run_dir, "--out", tmp_path / "m.fmu", "--vehicle", sheet],
+                 ["twin", run_dir, "--out", tmp_path / "t.toml", "--datasheet", sheet]):
+        result = _cli(*args)
+        assert result.exit_code == 2 and "drive.i_G" in result.output, args
+    assert not (tmp_path / "m.fmu").exists() and not (tmp_path / "t.toml").exists()
+
+
+def test_files_of_the_wrong_kind_are_refused_before_anything_runs(run_dir, tmp_path):
+    # a twin written over the run's own identification.json, a stats file the histogram would overwrite,
+    # a delay off the physics step's grid found only when the campaign starts
+    for args, message in ((["twin", run_dir, "--out", run_dir / "identification.json"], "a .toml file"),
+                          (["emulate", "--bus", "virtual:unopened", "--stats", tmp_path / "s.png"], "give a .json file"),
+                          (["emulate", "--bus", "virtual:unopened", "--stats", tmp_path], "give a .json file")):
+        result = _cli(*args)
+        assert result.exit_code == 2 and message in " ".join(result.output.split()), args
+    assert json.loads((run_dir / "identification.json").read_text())["parameters"]
+    effects = tmp_path / "delay.toml"
+    effects.write_text("[actuator_delay]\ndelay = 0.0015\n")
+    result = _cli("campaign", "--quick", "--effects", effects, "--out", tmp_path / "new")
+    assert result.exit_code == 2 and "not a multiple of the physics step" in " ".join(result.output.split())
+    assert not (tmp_path / "new").exists()
+
+
 def test_out_that_is_a_file_and_a_negative_seed_are_refused(tmp_path):
     (tmp_path / "file").write_text("")
     result = _cli("campaign", "--out", tmp_path / "file")

@@ -306,7 +306,7 @@ def test_a_model_of_another_vehicle_is_refused_before_its_twin_runs(identified_r
     (other / "signals.csv").write_text("\n".join(lines[:-1]) + "\n")         # another recording
     meta = json.loads((other / "metadata.json").read_text())
     (other / "metadata.json").write_text(json.dumps({**meta, "vehicle": "heavy_platform"}))
-    with pytest.raises(RunDirectoryError, match=r"identified on vehicle 'prototype', the data .* are a run of "
+    with pytest.raises(RunDirectoryError, match=r"identified on vehicle 'prototype', the data .* is "
                                                 r"'heavy_platform' \(they differ in vehicle name"):
         diagnose_paths(model, other, simulate=False)
     result = CliRunner().invoke(app, ["diagnose", "--model", str(model), "--data", str(other), "--out",

@@ -214,7 +214,7 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
         log is read while iterating).
     Raises:
         FileNotFoundError: no such log. DecodeError: unknown log format, unusable mapping, no 0x6076
-            anywhere, or no T_s.
+            anywhere, no T_s, or a T_s other than the 0x1006 the log's master wrote.
     """
     path = Path(path)
     if not path.is_file():
@@ -225,7 +225,7 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     if not period or period <= 0:
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
-    rated = _rated_torques(path, mapping, rated_torque, report)
+    rated = _rated_torques(path, mapping, rated_torque, report, period)
     reader = _open_log(path, report)
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
@@ -394,16 +394,35 @@ def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, increments, bits
 _SDO_UPLOAD_6076 = struct.Struct("<BHBI")
 
 
-def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport) -> np.ndarray:
-    """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``."""
+def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport,
+                   period: float) -> np.ndarray:
+    """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``.
+
+    The same pass reads the communication cycle period 0x1006 the log's master wrote to its nodes
+    (expedited SDO downloads): the decoded time is the SYNC count × ``period``, so a ``period`` other than
+    the one the master ran at would stretch every time and rate by their ratio.
+
+    Raises: DecodeError: no 0x6076 anywhere; a 0x1006 written in the log that is not ``period``."""
     seen: dict[int, int] = {}
+    written: dict[int, int] = {}
     reader = _open_log(path)
     for msg in _frames(reader, path):
         cob = msg.arbitration_id
-        if 0x581 <= cob <= 0x584 and len(msg.data) == 8 and not msg.is_extended_id:
+        if msg.is_extended_id or len(msg.data) != 8:
+            continue
+        if 0x581 <= cob <= 0x584:
             command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
             if command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
                 seen[cob - 0x580] = value
+        elif 0x601 <= cob <= 0x67F:
+            command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
+            if command == 0x23 and index == 0x1006 and sub == 0:          # expedited download, 4 bytes
+                written.setdefault(cob - 0x600, value)
+    for node_id, us in sorted(written.items()):
+        if us and abs(us * 1e-6 - period) > 0.5e-6:
+            raise DecodeError(f"{path}: the log's master set the communication cycle period 0x1006 of node "
+                              f"{node_id} to {us} µs; the cycle time given is {period * 1e6:g} µs: give the data "
+                              "sheet of the vehicle and settings this log was recorded with")
     out, sources = np.zeros(4), set()
     fallback = None if given is None else np.broadcast_to(np.asarray(given, dtype=float), (4,))
     for i, node_id in enumerate(DRIVE_NODE_IDS):

@@ -16,8 +16,8 @@ from qomni.ident.rundir import (BUS_BLF, BUS_DBC, CAMPAIGN_FILES, FIG_IDENTIFICA
                                 IDENTIFICATION_JSON, METADATA, SINGLE_AXIS_DIR, SINGLE_AXIS_FILES, SINGLE_AXIS_JSON,
                                 VALIDATION_JSON, check_lifted_vehicle, read_json, read_lifted)
 
-from .loaders import (check_bus_spec, load_datasheet, load_description, load_effects, load_faults, prepare_out,
-                      PLANT_PROCESS_HELP, vehicle_link)
+from .loaders import (check_bus_spec, check_effects, load_datasheet, load_description, load_effects, load_faults,
+                      prepare_out, PLANT_PROCESS_HELP, vehicle_link)
 
 ESTIMATOR_HELP = ("wls: channel-weighted least squares; irls: robust (Huber then Tukey bisquare) against "
                   "outlier rows; iv: instrumental variables from a model-simulated trajectory; consistent: all inertias, "
@@ -89,8 +89,8 @@ def campaign(
     if effects is not None and bus is not None:
         fail("--effects applies to the embedded emulator only (the vehicle on --bus has its own)")
     effect_set = load_effects(effects)
-    if bus is None:
-        load_description(vehicle)          # the embedded emulator's vehicle, checked before --force removes a run
+    if bus is None:                        # the embedded emulator's vehicle, checked before --force removes a run
+        check_effects(load_description(vehicle), effect_set)
     settings = CampaignSettings.quick() if quick else CampaignSettings()
     if excitation is not None:
         try:

@@ -108,6 +108,8 @@ def twin(
 
     if out.is_dir():
         fail(f"--out {out} is a directory; give the vehicle description file to write")
+    if out.suffix != ".toml":
+        fail(f"--out {out}: a vehicle description is a .toml file")
     if not out.parent.is_dir():
         fail(f"--out {out}: its folder {out.parent} does not exist")
     try:

@@ -1,7 +1,6 @@
 """``qomni export-fmu``: the identified model as a native C Co-Simulation FMU."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -34,21 +33,28 @@ def export_fmu(
 ):
     """Export the identified model as a native C Co-Simulation FMU (no Python needed to import it)."""
     from qomni.fmu.export import MODELS, FmuExportError, export_fmu
-    from qomni.ident.rundir import METADATA, datasheet_from_metadata, load_identification
+    from qomni.ident.rundir import (METADATA, check_identification_vehicle, datasheet_from_metadata,
+                                    load_identification, read_json)
 
     if kind not in MODELS:
         fail(f"--kind must be one of {', '.join(sorted(MODELS))}, got {kind!r}")
     if fmi not in (2, 3):
         fail(f"--fmi must be 2 or 3, got {fmi}")
     run_dir = source if source.is_dir() else source.parent
+    name = None
     if vehicle is not None:
         sheet = load_datasheet(vehicle, None)
+        other = f"--vehicle {vehicle}"
     else:
         meta = run_dir / METADATA
         if not meta.exists():
             fail(f"{meta} not found: pass --vehicle with the data sheet")
-        sheet = guarded(lambda: datasheet_from_metadata(json.loads(meta.read_text()), str(meta)))
+        recorded = guarded(lambda: read_json(meta))
+        sheet, name = guarded(lambda: datasheet_from_metadata(recorded, str(meta))), recorded.get("vehicle")
+        other = f"the run {run_dir}"
     result = guarded(lambda: load_identification(source))
+    guarded(lambda: check_identification_vehicle(source, sheet, name, other, "export a model with the data sheet "
+                                                 "of the vehicle it was identified on"))
     try:
         path = export_fmu(MODELS[kind], result, sheet, out, fmi_version=fmi, platforms=platform or None)
     except (FmuExportError, ValueError) as exc:

@@ -16,7 +16,7 @@ from rich.text import Text
 
 from .app import app
 from .console import console, fail
-from .loaders import load_description, load_effects, load_faults, prepare_out
+from .loaders import check_effects, load_description, load_effects, load_faults, prepare_out
 
 
 BUSY_POLL_HELP = ("s each socket wait polls before it blocks (0: block at once). Against the wake-up "
@@ -77,6 +77,8 @@ def emulate(
     _check_busy_poll(busy_poll)
     if stats is not None and not stats.parent.is_dir():
         fail(f"--stats {stats}: the directory {stats.parent} does not exist")
+    if stats is not None and (stats.is_dir() or stats.suffix != ".json"):
+        fail(f"--stats {stats}: give a .json file to write (the histogram goes beside it as .png)")
     from qomni.hil.device.realtime import RealtimeError, parse_cpus, pin_cpus, set_realtime_priority
 
     try:
@@ -89,6 +91,7 @@ def emulate(
     plan = load_faults(faults)
     description = load_description(vehicle)
     kwargs = {} if effects is None else {"effects": load_effects(effects)}
+    check_effects(description, kwargs.get("effects"))
     try:
         bus_arg = open_bus(bus, busy_poll=busy_poll) if busy_poll else bus   # else the server opens it
     except Exception as exc:                                        # noqa: BLE001 - say what and where

@@ -41,6 +41,21 @@ def load_effects(path: Optional[Path]):
         fail(str(exc))
 
 
+def check_effects(description, effects) -> None:
+    """Build the emulated vehicle once with ``effects`` before anything is written or started: the checks
+    that need its physics step (a delay or report lag on its 1 ms grid, a backlash stiffness it can
+    integrate) run where it is built."""
+    if effects is None:
+        return
+    from qomni.emulator.effects import EffectsError
+    from qomni.emulator.vehicle import Emulator
+
+    try:
+        Emulator(description, effects=effects).close()
+    except EffectsError as exc:
+        fail(str(exc))
+
+
 def load_faults(path: Optional[Path]):
     """The :class:`~qomni.hil.device.faults.FaultPlan` of ``path``, or None."""
     if path is None:

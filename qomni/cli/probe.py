@@ -43,7 +43,8 @@ def probe(
     except Exception as exc:                       # noqa: BLE001 - bad spec or interface: say so plainly
         fail(f"cannot open bus {bus!r}: {exc}")
     try:
-        reports = run_probe(can_bus, node or range(1, 128), timeout=timeout, samples=samples)
+        reports = run_probe(can_bus, sorted(set(node)) if node else range(1, 128), timeout=timeout,
+                            samples=samples)                      # a node given twice is probed once
         if timing is not None and timing not in [r.node_id for r in reports]:
             fail(f"--timing {timing}: node {timing} did not answer the scan")
         timed = measure(can_bus, timing, cycle=cycle, syncs=syncs) if timing is not None else None
