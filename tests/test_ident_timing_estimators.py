@@ -186,6 +186,8 @@ def test_cli_identify_takes_estimator_and_torque_lag(recorded, tmp_path):
     assert data["identifiability"]["m_ch"]["determined_by"] == ["straight"]
     assert all(data["parameters"][n]["std_bootstrap"] > 0 for n in CHASSIS)
     assert "estimator consistent" in ok.output and "torque lag" in ok.output
+    # the run's drives report on time: a configured one-cycle lag contradicts the campaign's own estimate
+    assert "warning: the configured torque lag is" in " ".join(ok.output.split())
     kept = runner.invoke(app, ["identify", str(run_dir), "--keep-spikes"])
     assert kept.exit_code == 0, kept.output
     assert json.loads((run_dir / "identification.json").read_text())["spikes"]["repaired"] is False

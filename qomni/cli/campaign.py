@@ -227,6 +227,15 @@ def _print_parameters(result) -> None:
             console.print(f"torque lag estimated from the campaign: {1e3 * lag['estimate']:.3f} ± "
                           f"{1e3 * lag['estimate_std']:.3f} ms" +
                           ("" if lag["source"] == "estimated" else " (--torque-lag auto corrects for it)"))
+            z = abs(lag["value"] - lag["estimate"]) / lag["estimate_std"] if lag["estimate_std"] else 0.0
+            if lag["source"] != "estimated" and z > LAG_CONTRADICTION_Z:
+                console.print(f"warning: the configured torque lag is {z:.0f} σ from the campaign's own "
+                              "estimate; the parameters are corrected for a lag the data do not show")
+
+
+#: Distance (in the estimate's σ) beyond which a configured torque lag contradicts the campaign's estimate:
+#: p ≈ 6·10⁻⁷ for a normal estimate, so a lag the drive maker states is not flagged for noise.
+LAG_CONTRADICTION_Z = 5.0
 
 
 def _print_validation(validation) -> None:
