@@ -81,9 +81,8 @@ class FmuSlave:
         self.version = int(md.fmiVersion[0])
         self.variables = {v.name: v for v in md.modelVariables}
         cls = FMU2Slave if self.version == 2 else FMU3Slave
-        self.fmu = cls(guid=md.guid, unzipDirectory=directory, modelIdentifier=md.coSimulation.modelIdentifier,
-                       instanceName=instance_name)
-        fmu, self.fmu = self.fmu, None
+        fmu = cls(guid=md.guid, unzipDirectory=directory, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=instance_name)
         if event_mode:
             fmu.instantiate(eventModeUsed=True)
         else:

@@ -336,7 +336,8 @@ def check_lifted_vehicle(path: Path, data: dict, sheet: DataSheet) -> None:
     Raises: RunDirectoryError: names both vehicles and what differs."""
     if not isinstance(data.get("vehicle"), str):
         return
-    differ = [f"vehicle name ('{data['vehicle']}' against '{sheet.name}')"] if data["vehicle"] != sheet.name else []
+    differ = [f"vehicle name ('{data['vehicle']}' against '{sheet.name}')"] \
+        if data["vehicle"] != sheet.name else []
     if isinstance(data.get("datasheet"), dict):
         tables = {"nominal": asdict(sheet.nominal), **data["datasheet"]}
         differ += vehicle_differences(DataSheet.from_tables(tables, data["vehicle"], f"{path} datasheet"), sheet)

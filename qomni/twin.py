@@ -163,11 +163,10 @@ def write_twin(identification: str | Path, out: str | Path, datasheet: str | Pat
         DataSheetError: the given data sheet is invalid. TwinError: a parameter is not physical.
     """
     result = load_identification(identification)
-    sheet = _sheet_for(Path(identification), datasheet)
-    run = Path(identification) if Path(identification).is_dir() else Path(identification).parent
-    name = None if datasheet is not None else read_json(run / METADATA).get("vehicle")
-    check_identification_vehicle(identification, sheet, name, f"--datasheet {datasheet}" if datasheet is not None
-                                 else f"the run {run}", "a twin is the vehicle its model was identified on")
+    sheet, name = _sheet_for(Path(identification), datasheet)
+    other = f"--datasheet {datasheet}" if datasheet is not None else f"the run {_run_of(Path(identification))}"
+    check_identification_vehicle(identification, sheet, name, other,
+                                 "a twin is the vehicle its model was identified on")
     text = twin_toml(twin_description(result, sheet, str(identification)))
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")
@@ -176,11 +175,18 @@ def write_twin(identification: str | Path, out: str | Path, datasheet: str | Pat
     return out
 
 
-def _sheet_for(identification: Path, datasheet: str | Path | None) -> DataSheet:
+def _run_of(identification: Path) -> Path:
+    return identification if identification.is_dir() else identification.parent
+
+
+def _sheet_for(identification: Path, datasheet: str | Path | None) -> tuple[DataSheet, str | None]:
+    """The twin's data sheet, ``datasheet`` if given, else the one the identification's run recorded, and
+    the vehicle name the run recorded (None for a data sheet file, whose name is its file's)."""
     if datasheet is not None:
-        return DataSheet.load(datasheet)
-    run = identification if identification.is_dir() else identification.parent
-    return datasheet_from_metadata(read_json(run / METADATA), str(run / METADATA))
+        return DataSheet.load(datasheet), None
+    run = _run_of(identification)
+    meta = read_json(run / METADATA)
+    return datasheet_from_metadata(meta, str(run / METADATA)), meta.get("vehicle")
 
 
 @dataclass(frozen=True)
@@ -214,7 +220,7 @@ def _twin_campaign(identification: str | Path, data_dir: str | Path,
     if datasheet is None:
         sheet = datasheet_from_metadata(meta, str(source))
     else:
-        sheet = _sheet_for(Path(identification), datasheet)
+        sheet, _ = _sheet_for(Path(identification), datasheet)
         if "datasheet" in meta:
             differ = vehicle_differences(sheet, datasheet_from_metadata(meta, str(source)))
             if differ:

@@ -225,7 +225,9 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     if not period or period <= 0:
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
-    rated = _rated_torques(path, mapping, rated_torque, report, period)
+    logged = _logged_sdo(path)
+    _check_period(path, logged, period)
+    rated = _rated_torques(path, mapping, rated_torque, report, logged)
     reader = _open_log(path, report)
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
@@ -391,38 +393,52 @@ def _emit(rx, mapping, expected, k, period, cmd, rated, unwrap, increments, bits
     return DecodedCycle(measurement, cmd.copy(), tuple(fields["status"])), (raw, total)
 
 
-_SDO_UPLOAD_6076 = struct.Struct("<BHBI")
+#: An expedited SDO frame: command specifier, index, sub-index, up to four data bytes (CiA 301, 7.2.4.3).
+_SDO_EXPEDITED = struct.Struct("<BHBI")
 
 
-def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport,
-                   period: float) -> np.ndarray:
-    """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``.
+@dataclass
+class _LoggedSdo:
+    """What the log's expedited SDO frames say: 0x6076 uploaded from each drive (mN m, node id → value),
+    and 0x1006 the master downloaded to each node (µs)."""
 
-    The same pass reads the communication cycle period 0x1006 the log's master wrote to its nodes
-    (expedited SDO downloads): the decoded time is the SYNC count × ``period``, so a ``period`` other than
-    the one the master ran at would stretch every time and rate by their ratio.
+    rated_mnm: dict[int, int] = field(default_factory=dict)
+    cycle_period_us: dict[int, int] = field(default_factory=dict)
 
-    Raises: DecodeError: no 0x6076 anywhere; a 0x1006 written in the log that is not ``period``."""
-    seen: dict[int, int] = {}
-    written: dict[int, int] = {}
-    reader = _open_log(path)
-    for msg in _frames(reader, path):
+
+def _logged_sdo(path: Path) -> _LoggedSdo:
+    """One pass over the log for the SDO values the decode uses."""
+    logged = _LoggedSdo()
+    for msg in _frames(_open_log(path), path):
         cob = msg.arbitration_id
         if msg.is_extended_id or len(msg.data) != 8:
             continue
-        if 0x581 <= cob <= 0x584:
-            command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
-            if command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
-                seen[cob - 0x580] = value
-        elif 0x601 <= cob <= 0x67F:
-            command, index, sub, value = _SDO_UPLOAD_6076.unpack(bytes(msg.data))
-            if command == 0x23 and index == 0x1006 and sub == 0:          # expedited download, 4 bytes
-                written.setdefault(cob - 0x600, value)
-    for node_id, us in sorted(written.items()):
+        command, index, sub, value = _SDO_EXPEDITED.unpack(bytes(msg.data))
+        if 0x581 <= cob <= 0x584 and command & 0xE3 == 0x43 and index == 0x6076 and sub == 0:
+            logged.rated_mnm[cob - 0x580] = value                        # expedited upload response
+        elif 0x601 <= cob <= 0x67F and command == 0x23 and index == 0x1006 and sub == 0:
+            logged.cycle_period_us.setdefault(cob - 0x600, value)       # expedited download, 4 bytes
+    return logged
+
+
+def _check_period(path: Path, logged: _LoggedSdo, period: float) -> None:
+    """The decoded time is the SYNC count × ``period``: a ``period`` other than the communication cycle
+    period 0x1006 the log's master wrote to its nodes would stretch every time and rate by their ratio.
+
+    Raises: DecodeError: names the node and both values."""
+    for node_id, us in sorted(logged.cycle_period_us.items()):
         if us and abs(us * 1e-6 - period) > 0.5e-6:
             raise DecodeError(f"{path}: the log's master set the communication cycle period 0x1006 of node "
                               f"{node_id} to {us} µs; the cycle time given is {period * 1e6:g} µs: give the data "
                               "sheet of the vehicle and settings this log was recorded with")
+
+
+def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport,
+                   logged: _LoggedSdo) -> np.ndarray:
+    """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``.
+
+    Raises: DecodeError: no 0x6076 anywhere."""
+    seen = logged.rated_mnm
     out, sources = np.zeros(4), set()
     fallback = None if given is None else np.broadcast_to(np.asarray(given, dtype=float), (4,))
     for i, node_id in enumerate(DRIVE_NODE_IDS):

@@ -40,7 +40,8 @@ def diagnose(
 
     if out.exists() and not out.is_dir():
         fail(f"--out {out} is a file, not a directory")
-    if not other_vehicle and not guarded(lambda: identified_on(model, data)):
+    from_data = guarded(lambda: identified_on(model, data))
+    if not other_vehicle and not from_data:
         guarded(lambda: check_model_vehicle(model, data))          # before the twin's campaign runs
     repeats: list[Path] = []
     if reference is None:
@@ -51,8 +52,8 @@ def diagnose(
         fail(f"--reference {reference} is not a run directory")
     try:
         d = guarded(lambda: diagnose_paths(model, data, holdout, reference_dir=reference,
-                                           other_vehicle=other_vehicle, reference_repeats=repeats,
-                                           simulate=simulate))
+                                           other_vehicle=other_vehicle, model_from_data=from_data,
+                                           reference_repeats=repeats, simulate=simulate))
     except PairingError as exc:      # repeats of a twin whose campaign does not pair with the data's
         fail(str(exc))
     table = Table(title="Unmodelled-effect hypotheses (ranked by held-out residual removed)")
