@@ -38,7 +38,7 @@ def _identification_values(identification) -> tuple[dict[str, float], dict[str, 
     wrong = identification.not_physical() if hasattr(identification, "not_physical") else []
     if wrong:
         raise ValueError(f"the identified model is not physical ({', '.join(wrong)}): an FMU of it would "
-                         "simulate no vehicle; identify with --estimator consistent")
+                         f"simulate no vehicle; {identification.not_physical_remedy()}")
     return values, dict(getattr(identification, "std", {}) or {})
 
 

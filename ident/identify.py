@@ -141,7 +141,7 @@ def validate_run(run_dir: str | Path) -> ValidationResult:
     if result.not_physical():
         raise RunDirectoryError(f"{run_dir / IDENTIFICATION_JSON}: the model is not physical "
                                 f"({', '.join(result.not_physical())}); its forward simulation would not be "
-                                "a vehicle's: identify with --estimator consistent")
+                                f"a vehicle's: {result.not_physical_remedy()}")
     blocks = validation_blocks(signals, sheet)
     validation = compare_generalized_torques(blocks, result)
     data = validation.to_json_dict()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import spearmanr
 
+from . import kinematics
 from .recording import WHEELS, RecordingError, Signals
 
 #: Shortest recording the drive checks judge (s): a few seconds of a campaign step move every drive.
@@ -39,6 +40,14 @@ MIN_POSITION_VELOCITY_R2 = 0.5
 #: current loop follows its demand (1.000 on the emulator's drives with delays, lags and limits), a
 #: torque actual of the wrong sign or another drive's does not.
 MIN_TORQUE_CORRELATION = 0.5
+#: Largest median distance (rad) of a step's steering angles from its motion mode's configuration (9)
+#: over :data:`MODE_WINDOW`: a tyre's slip angle past the saturation of its side force (0.1–0.2 rad).
+#: Beyond it the wheels slide sideways rather than hold mode k, and the rows are another step's (a
+#: decode laid over another campaign's metadata). The campaign holds the configurations within 0.03 rad
+#: (window medians, every effect at realistic magnitudes).
+MAX_CONFIGURATION_ERROR = 0.2
+#: Window of a step's rows whose median :data:`MAX_CONFIGURATION_ERROR` bounds (s).
+MODE_WINDOW = 1.0
 
 
 def check_coverage(signals: Signals, segments: list[dict], cycle_time: float, path: str) -> None:
@@ -138,6 +147,59 @@ def check_ranges(signals: Signals, max_torque: float, steering_limit: float, pat
                                  f"({len(over)} row(s)): another unit, or a data sheet of another vehicle")
 
 
+def configuration_error(alpha: np.ndarray, k: int, geometry) -> np.ndarray:
+    """Distance (rad) of steering angles ``alpha`` (N, 2) from mode k's configuration of (9), shape (N,):
+    k = 2 the ICR manifold (:func:`.kinematics.icr_residual`, +inf where no α_v reaches it), k = 3 and 4
+    max |α − :func:`.kinematics.mode_alpha`|; k = 1 (free steering) zeros."""
+    if k == 1:
+        return np.zeros(len(alpha))
+    if k == 2:
+        return kinematics.icr_residual(alpha, geometry)
+    return np.max(np.abs(alpha - kinematics.mode_alpha(k, geometry)), axis=1)
+
+
+def check_modes(signals: Signals, geometry, path: str) -> None:
+    """Every step's steering holds its motion mode's configuration (9).
+
+    The rows of a step in mode k = 2, 3 or 4 are the mode's only where the steering lies on its
+    configuration: the median of :func:`configuration_error` over every :data:`MODE_WINDOW` of the step's
+    rows (a shorter step: all of them; windows a tenth of one apart) must be at most
+    :data:`MAX_CONFIGURATION_ERROR`. Mode 1 steers freely and is not checked, nor are the rows of a
+    decoded log without campaign steps (k = 0).
+
+    Raises:
+        RecordingError: names the line and time where the first such window starts, the step, its mode
+            and the median error.
+    """
+    time = np.asarray(signals.time, dtype=float)
+    if len(time) < 2:
+        return
+    width = max(1, int(round(MODE_WINDOW / float(np.median(np.diff(time))))))
+    step = np.asarray(signals.step)
+    starts = np.flatnonzero(np.r_[True, step[1:] != step[:-1]])
+    for first, stop in zip(starts, np.r_[starts[1:], len(time)]):
+        k = int(signals.k[first])
+        if k not in (2, 3, 4):              # mode 1, or k = 0: a decoded log's rows without campaign steps
+            continue
+        error = configuration_error(np.asarray(signals.alpha[first:stop], dtype=float), k, geometry)
+        w = min(width, len(error))
+        hop = max(1, w // 10)
+        medians = np.median(np.lib.stride_tricks.sliding_window_view(error, w)[::hop], axis=1)
+        off = np.flatnonzero(medians > MAX_CONFIGURATION_ERROR)
+        if len(off):
+            j = int(first + off[0] * hop)
+            median = float(medians[off[0]])
+            distance = (f"{median:.3g} rad" if np.isfinite(median)
+                        else "beyond reach (no α_v of mode 2 holds them)")
+            raise RecordingError(
+                f"{path}:{j + 2}: the steering angles of step '{step[first]}' (mode {k}) lie "
+                f"{distance} from the mode's configuration (median over "
+                f"{w * float(np.median(np.diff(time))):.3g} s from t = {time[j]:.3f} s; at most "
+                f"{MAX_CONFIGURATION_ERROR:g} rad): these rows are not that step's (a log decoded with "
+                "another campaign's metadata, or step labels shifted), or the data sheet's geometry (l, b) is "
+                "not this vehicle's")
+
+
 def velocity_conventions(v: np.ndarray) -> np.ndarray:
     """(3, N − 1): a drive's velocity actual (N,) at the end of each cycle, at its start, and their mean,
     the three ways a drive may time-stamp 0x606C against the position change x_t − x_{t−1} (multiply by
@@ -200,5 +262,6 @@ def check_drives(signals: Signals, path: str) -> None:
                                      "expected): a reversed torque polarity or another drive's value")
 
 
-__all__ = ["check_coverage", "check_drives", "check_ranges", "velocity_conventions", "MIN_SPAN",
+__all__ = ["check_coverage", "check_drives", "check_ranges", "check_modes", "configuration_error",
+           "velocity_conventions", "MIN_SPAN",
            "ROW_TOLERANCE", "MIN_POSITION_VELOCITY_R2", "MIN_TORQUE_CORRELATION"]

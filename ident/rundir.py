@@ -19,7 +19,8 @@ from qomni.datasheet import DataSheet, DataSheetError, vehicle_differences
 
 from .result import IdentificationResult
 from .recording import Signals, read_signals
-from .plausibility import check_coverage, check_drives, check_ranges
+from .plausibility import check_coverage, check_drives, check_modes, check_ranges
+from .wheel_slip import check_rolling
 
 METADATA = "metadata.json"
 #: The run-directory format this version writes and reads (metadata.json ``format``).
@@ -217,8 +218,9 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
         campaign's;
         RecordingError/DataSheetError: a file is invalid, signals.csv
         lacks rows (of a step the metadata says completed, or between two rows), a drive's signals are
-        dead or disagree, or a torque or steering angle lies beyond the data sheet's limits
-        (:mod:`.plausibility`).
+        dead or disagree, a torque or steering angle lies beyond the data sheet's limits, a step's
+        steering is off its mode's configuration (:mod:`.plausibility`), or a wheel did not roll
+        (:mod:`.wheel_slip`).
     """
     run_dir = Path(run_dir)
     for name in (SIGNALS, METADATA):
@@ -233,6 +235,8 @@ def load_run(run_dir: str | Path) -> tuple[Signals, DataSheet, dict]:
                    str(run_dir / SIGNALS))
     check_drives(signals, str(run_dir / SIGNALS))
     check_ranges(signals, sheet.drive.max_torque, sheet.geometry.steering_limit, str(run_dir / SIGNALS))
+    check_modes(signals, sheet.geometry, str(run_dir / SIGNALS))
+    check_rolling(signals, sheet, str(run_dir / SIGNALS))
     return complete_rows(signals, meta, str(run_dir / METADATA)), sheet, meta
 
 

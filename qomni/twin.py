@@ -80,7 +80,7 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
     wrong = result.not_physical()
     if wrong:
         raise TwinError(f"{source}: identified {', '.join(wrong)}: not physical (an inertia or mass not "
-                        "positive, or a negative friction)")
+                        f"positive, or a negative friction); {result.not_physical_remedy()}")
     _check_order_of_magnitude(truth, sheet, source)
     body = replace(prototype.body, wheel_transverse_inertia=max(prototype.body.wheel_transverse_inertia,
                                                                 truth.B_w / 2))

@@ -103,14 +103,16 @@ def test_qomni_decode_writes_a_run_directory(session, tmp_path):
 
     _, logs, reference, _ = session
     metadata = _run_metadata(tmp_path, [{"name": "steer_left", "k": 1, "t_start": 0.0, "t_end": 20 * T_S},
-                                        {"name": "straight", "k": 2, "t_start": 20 * T_S, "t_end": 39 * T_S}])
+                                        {"name": "steer_right", "k": 1, "t_start": 20 * T_S, "t_end": 39 * T_S}])
     out = tmp_path / "run"
     result = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out), "--metadata", str(metadata)])
     assert result.exit_code == 0, result.output
     signals, loaded_sheet, loaded_meta = load_run(out)
-    assert signals.steps() == ["steer_left", "straight"] and len(signals) == 39   # t = 0 is in no segment
+    assert signals.steps() == ["steer_left", "steer_right"] and len(signals) == 39   # t = 0 is in no segment
     np.testing.assert_allclose(signals.motor_position[0], reference[1][0].motor_position, atol=1e-12)
     assert loaded_meta["decoded"]["cycles"] == N_CYCLES and loaded_sheet.drive.cycle_time == T_S
+    assert loaded_meta["decoded"]["cycles_outside_segments"] == N_CYCLES - 39
+    assert f"{N_CYCLES - 39} cycle(s) outside the segments" in " ".join(result.output.split())
     again = CliRunner().invoke(app, ["decode", str(logs[1]), "--out", str(out)])
     assert again.exit_code == 2 and "--force" in again.output
     bad = CliRunner().invoke(app, ["decode", str(tmp_path / "missing.blf"), "--out", str(tmp_path / "x")])
@@ -129,7 +131,7 @@ def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_i
     drops = [i for i, line in enumerate(lines) if " 183#" in line]
     log = tmp_path / "lossy.log"
     log.write_text("\n".join(lines[:drops[10]] + lines[drops[10] + 1:]) + "\n")
-    metadata = _run_metadata(tmp_path, [{"name": "straight", "k": 2, "t_start": 0.0, "t_end": 39 * T_S}])
+    metadata = _run_metadata(tmp_path, [{"name": "steer_left", "k": 1, "t_start": 0.0, "t_end": 39 * T_S}])
     out = tmp_path / "run"
     result = CliRunner().invoke(app, ["decode", str(log), "--out", str(out), "--metadata", str(metadata)])
     assert result.exit_code == 0 and "1 incomplete skipped" in result.output
@@ -166,6 +168,51 @@ def test_a_log_that_lost_a_sync_decodes_every_cycle_at_its_time(session, tmp_pat
         np.testing.assert_array_equal(got.motor_torque_cmd, want.motor_torque_cmd)
     result = CliRunner().invoke(app, ["decode", str(tmp_path / "edited.log"), "--out", str(tmp_path / "run")])
     assert result.exit_code == 0 and "1 SYNC missing from the log restored" in " ".join(result.output.split())
+
+
+def _real_time(lines: list[str]) -> list[str]:
+    """The candump -L lines restamped as a real-time master's: each cycle's frames T_s after the last's."""
+    out, cycle, within = [], 0, 0
+    for line in lines:
+        sync = " 080#" in line
+        cycle, within = cycle + sync, 0 if sync else within + 1
+        out.append(f"({1700000000.0 + cycle * T_S + 1e-5 * within:.6f}) {line.split(' ', 1)[1]}")
+    return out
+
+
+def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, tmp_path):
+    """A logger that lost a SYNC with every TPDO of its cycle: a real-time log's SYNC clock shows the gap,
+    so the later cycles keep their time and the missing rows are there to be refused; a lock-step log's
+    stamps are not real time and its cycles are counted as logged."""
+    _, logs, _, _ = session
+
+    def decode(lines: list[str]) -> tuple[list, DecodeReport]:
+        log = tmp_path / "edited.log"
+        log.write_text("\n".join(lines) + "\n")
+        report = DecodeReport()
+        return list(decode_log(log, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                               report=report)), report
+
+    lines = _real_time(logs[1].read_text().splitlines())
+    intact, report = decode(lines)
+    assert report.real_time_clock and report.lost_cycles == 0 and len(intact) == N_CYCLES
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    stamp, rest = lines[syncs[20]].split(" ", 1)                   # a SYNC 0.6 T_s late: jitter, not a loss
+    late = lines[:syncs[20]] + [f"({float(stamp[1:-1]) + 0.6 * T_S:.6f}) {rest}"] + lines[syncs[20] + 1:]
+    cycles, report = decode(late)
+    assert report.real_time_clock and report.lost_cycles == 0 and len(cycles) == N_CYCLES
+    lossy = lines[:syncs[10]] + lines[syncs[12]:]                  # two SYNCs and their TPDOs gone
+    at = syncs[10]                                                 # the next SYNC, logged three times
+    lossy = lossy[:at] + [lossy[at]] * 2 + lossy[at:]
+    cycles, report = decode(lossy)
+    assert report.lost_cycles == 2 and report.duplicates == 2 and len(cycles) == N_CYCLES - 2
+    times = {round(c.measurement.time, 9) for c in cycles}
+    assert times == {round(c.measurement.time, 9) for c in intact} - {round(c.measurement.time, 9) for c in
+                                                                       intact[10:12]}
+    lockstep = logs[1].read_text().splitlines()
+    syncs = [i for i, line in enumerate(lockstep) if " 080#" in line]
+    _, report = decode(lockstep[:syncs[10]] + lockstep[syncs[12]:])
+    assert not report.real_time_clock and report.lost_cycles == 0
 
 
 def test_a_cycle_time_other_than_the_one_the_master_set_is_refused(session):

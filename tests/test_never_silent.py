@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -325,6 +326,28 @@ def test_a_row_in_another_motion_mode_than_its_step_is_refused(run_dir):
         load_run(run_dir)
 
 
+@pytest.mark.parametrize("k, distance", [(2, r"beyond reach \(no α_v of mode 2 holds them\)"),
+                                         (3, r"0\.6\d+ rad")])
+def test_a_step_whose_steering_is_off_its_modes_configuration_is_refused(run_dir, k, distance):
+    # rows and metadata agree on the mode, but the steering says the rows are another step's: a log
+    # decoded with another campaign's metadata lays its steps over the wrong rows
+    lines = (run_dir / "signals.csv").read_text().splitlines()
+    rows = _rows_of(run_dir, "rotation")
+    for at in rows:
+        cells = lines[at].split(",")
+        cells[2] = str(k)
+        lines[at] = ",".join(cells)
+    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    for seg in meta["segments"]:
+        if seg["name"] == "rotation":
+            seg["k"] = k
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=rf"signals.csv:{rows[0] + 1}: the steering angles of step 'rotation' "
+                                             rf"\(mode {k}\) lie {distance} from the mode's configuration"):
+        load_run(run_dir)
+
+
 def test_a_complete_step_under_a_drifting_jittery_clock_is_complete():
     # a master whose SYNC period is 0.3 % off the nominal 2 ms, time stamps jittering by 50 µs: 30000 rows
     # over the step's 60.2 s are all there; two thirds of them are not
@@ -366,6 +389,46 @@ def test_a_dead_or_reversed_drive_signal_is_refused(run_dir, column, change, mes
         load_run(run_dir)
 
 
+def _edit_wheel(run: Path, wheel: str, change) -> None:
+    """``change(time, position, velocity)`` of one drive's motor-side position and velocity actual."""
+    lines = (run / "signals.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    at_x = head.index(f"motor_position_{wheel} [rad motor]")
+    at_v = head.index(f"motor_velocity_{wheel} [rad/s motor]")
+    out = [lines[0]]
+    for row in lines[1:]:
+        f = row.split(",")
+        f[at_x], f[at_v] = (repr(float(v)) for v in change(float(f[0]), float(f[at_x]), float(f[at_v])))
+        out.append(",".join(f))
+    (run / "signals.csv").write_text("\n".join(out) + "\n")
+
+
+def _spin(t0: float, duration: float, rate: float):
+    """A wheel that spins ``rate`` (motor side, rad/s) faster than it rolls from t0 for ``duration``."""
+    def change(t, x, v):
+        inside = t0 < t <= t0 + duration
+        return x + rate * min(max(t - t0, 0.0), duration), v + (rate if inside else 0.0)
+    return change
+
+
+def test_a_wheel_that_spins_or_lifts_is_refused_naming_it(run_dir):
+    # a 2000 kg load 0.7 m off-centre lifted drive rl of the emulated prototype (600 rad/s on the motor
+    # side against 38) through a whole campaign; identified as it was, m_ch came out 263 kg
+    _edit_wheel(run_dir, "rl", _spin(11.5, 0.5, 100.0))
+    with pytest.raises(RecordingError, match=r"signals.csv:\d+: wheel rl rolled \+0\.\d+ m beyond the .* "
+                                             r"\(step 'straight'\).*spun, lifted or skidded"):
+        load_run(run_dir)
+
+
+def test_tyres_within_their_tolerances_and_glitches_are_not_slip(run_dir):
+    # a tyre 5 % under the data sheet's radius (worn), a 0.2 s spin of a tenth of the wheel's speed, one
+    # wild position sample: none is a wheel off the ground
+    _edit_wheel(run_dir, "fl", lambda t, x, v: (x / 0.95, v / 0.95))
+    _edit_wheel(run_dir, "fr", _spin(19.0, 0.2, 4.0))
+    _edit_wheel(run_dir, "rr", lambda t, x, v: (x + (50.0 if abs(t - 12.0) < 1e-3 else 0.0), v))
+    load_run(run_dir)
+
+
 def test_a_model_that_is_not_physical_is_refused_where_it_would_be_simulated(run_dir, tmp_path):
     data = json.loads((run_dir / "identification.json").read_text())
     data["parameters"]["m_ch"]["value"] = -800.0        # least squares can return it; no vehicle has it
@@ -376,6 +439,26 @@ def test_a_model_that_is_not_physical_is_refused_where_it_would_be_simulated(run
         result = _cli(*args)
         assert result.exit_code == 2 and "m_ch = -800" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "m.fmu").exists() and not (tmp_path / "twin.toml").exists()
+
+
+def test_the_remedy_for_a_model_that_is_not_physical_fits_how_far_below_zero_it_lies(run_dir):
+    from dataclasses import replace
+
+    result = load_identification(run_dir)
+    assert result.not_physical_remedy() == ""
+    # noise around a small parameter: a bound mends it
+    small = replace(result, values={**result.values, "C_l": -0.5 * result.std["C_l"]})
+    assert small.not_physical_remedy() == "identify with --estimator consistent"
+    # far below zero: a value taken as known is wrong (a data-sheet B_w 10x the vehicle's: C_l -39 sigma)
+    far = replace(result, values={**result.values, "C_l": -39 * result.std["C_l"]})
+    assert re.match(r"C_l -39 σ lie far below zero, .*B_w = .*unmodelled effect", far.not_physical_remedy())
+    # the consistent estimator's result at its bound is judged by its unbounded first pass, never sent back to it
+    held = replace(result, estimator="consistent", values={**result.values, "C_l": 0.0},
+                   std={**result.std, "C_l": 0.0},
+                   values_ls={**result.values_ls, "C_l": -39 * result.std_ls["C_l"]})
+    assert re.match(r"C_l -39 σ unbounded lie far below zero", held.not_physical_remedy())
+    at_bound = replace(held, values_ls={**result.values_ls, "C_l": -0.5 * result.std_ls["C_l"]})
+    assert "consistent fit holds them at their bound; where no bound" in at_bound.not_physical_remedy()
 
 
 def test_a_campaign_whose_estimate_is_not_physical_keeps_it_and_skips_the_validation(run_dir, monkeypatch, capsys):

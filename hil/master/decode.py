@@ -22,7 +22,12 @@ A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeRepor
 missing from the log (the logger lost it) shows as a synchronous TPDO (transmission type 0–240, sent at
 most once per SYNC) sent again before the next SYNC: the cycle boundary is restored there and counted
 (:attr:`DecodeReport.sync_restored`), so the later cycles keep their time; the same frame logged twice
-(identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). A log cut
+(identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). Where the
+log's SYNC time stamps run on the T_s grid (:func:`_real_time_clock`: a real-time master's log), a SYNC
+that comes n + 1 periods after the one before (within :data:`GRID_TOLERANCE`) says that n cycles are
+missing from the log, SYNC and TPDOs alike: the count skips them (:attr:`DecodeReport.lost_cycles`), so later cycles keep their time
+and the readers of the run refuse the gap, naming the line. A lock-step recording's stamps are not
+real time, and its count is the SYNCs logged. A log cut
 while it was written (a BLF shorter than its header announces, a text log whose last line has no line
 end) is decoded up to the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
@@ -60,6 +65,14 @@ EVENT_DRIVEN = 0xFF
 #: Largest difference of time stamps (s) of one frame logged twice: a log's resolution (candump -L: 1 µs).
 #: The next cycle's frame is stamped later, even in a lock-step recording whose cycles are not real time.
 DUPLICATE_STAMP = 1e-6
+#: Largest jitter of a real-time log's SYNC intervals (robust σ, share of T_s): a real-time master's SYNC
+#: jitters by a few per cent of T_s (50 µs on 2 ms is 2.5 %), a lock-step master's by whole periods.
+CLOCK_JITTER = 0.05
+#: Largest distance (share of T_s) from the grid of a SYNC that follows lost cycles: n + 1 periods after
+#: the last boundary within it is n cycles lost; farther off (1.6 T_s) is a late SYNC, 5 σ of the jitter.
+GRID_TOLERANCE = 0.25
+#: SYNC intervals longer than this many periods are pauses between sessions, not judged for the clock.
+CLOCK_SPAN = 10
 
 
 class DecodeError(ValueError):
@@ -78,12 +91,15 @@ class DecodedCycle:
 @dataclass
 class DecodeReport:
     """Counts of a decode: frames read, cycles decoded, cycles skipped as incomplete, SYNCs missing from
-    the log and restored, a logger's duplicate frames dropped, rated torque used."""
+    the log and restored, whole cycles missing from a real-time log (and whether its SYNC clock is read as
+    real time), a logger's duplicate frames dropped, rated torque used."""
 
     frames: int = 0
     cycles: int = 0
     incomplete: int = 0
     sync_restored: int = 0
+    lost_cycles: int = 0
+    real_time_clock: bool = False
     duplicates: int = 0
     sessions: int = 0
     rated_torque: list = field(default_factory=list)
@@ -225,12 +241,26 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     if not period or period <= 0:
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
-    logged = _logged_sdo(path)
+    logged = _logged_sdo(path, mapping.sync_cob_id)
     _check_period(path, logged, period)
     rated = _rated_torques(path, mapping, rated_torque, report, logged)
+    report.real_time_clock = _real_time_clock(np.asarray(logged.sync_stamps), period)
     reader = _open_log(path, report)
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
+
+
+def _real_time_clock(stamps: np.ndarray, period: float) -> bool:
+    """Whether SYNC time stamps (s, in log order) run on the ``period`` grid: the median interval within
+    :data:`CLOCK_JITTER` of ``period`` and the intervals' robust σ (1.4826 × MAD of those within half a
+    period of it) at most :data:`CLOCK_JITTER` × ``period``. Intervals over :data:`CLOCK_SPAN` periods
+    (sessions) and backwards ones are left out."""
+    intervals = np.diff(stamps) / period
+    intervals = intervals[(intervals > 0) & (intervals <= CLOCK_SPAN)]
+    if len(intervals) < 2 or abs(float(np.median(intervals)) - 1.0) > CLOCK_JITTER:
+        return False
+    near = intervals[np.abs(intervals - 1.0) < 0.5]
+    return 1.4826 * float(np.median(np.abs(near - np.median(near)))) <= CLOCK_JITTER
 
 
 def _open_log(path: Path, report: DecodeReport | None = None):
@@ -324,6 +354,8 @@ def _frames(reader, path: Path):
 
 def _cycles(reader, mapping, period, rated, report, encoder_increments, steering_sensor_bits):
     sync_id = mapping.sync_cob_id
+    boundary = None       # time stamp of the last cycle boundary (a SYNC, or a restored one), real-time logs
+    last_sync = None      # time stamp of the last SYNC frame
     expected = len(mapping.tpdos)
     cmd = np.zeros(4)
     pending_cmd = np.zeros(4)
@@ -338,6 +370,11 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
                 continue
         cob = sync_id if msg is None else msg.arbitration_id
+        if cob == sync_id and msg is not None:
+            if not rx and last_sync is not None and abs(msg.timestamp - last_sync) <= DUPLICATE_STAMP:
+                report.duplicates += 1                   # the logger wrote the SYNC twice
+                continue
+            last_sync = msg.timestamp
         lost_sync = False
         if cycle is not None and cob in rx and cob in mapping.synchronous:
             if bytes(msg.data) == rx[cob] and abs(msg.timestamp - seen_at[cob]) <= DUPLICATE_STAMP:
@@ -359,12 +396,20 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             cmd = pending_cmd.copy()
             if cycle is not None:
                 cycle += 1
+                if report.real_time_clock and msg is not None:
+                    if cob == sync_id and boundary is not None:
+                        periods = (msg.timestamp - boundary) / period
+                        lost = int(round(periods)) - 1
+                        if lost > 0 and abs(periods - round(periods)) <= GRID_TOLERANCE:
+                            cycle += lost                # SYNC and TPDOs of whole cycles not in the log
+                            report.lost_cycles += lost
+                    boundary = msg.timestamp if cob == sync_id or boundary is None else boundary + period
         if cob == sync_id:
             pass
         elif cob == 0x000 and len(msg.data) == 2 and msg.data[0] == _NMT_START:
             if cycle is None or cycle > 0:
                 report.sessions += 1
-            cycle, unwrap, rx = 0, None, {}
+            cycle, unwrap, rx, boundary = 0, None, {}, None
         elif cob in mapping.tpdos:
             rx[cob] = bytes(msg.data)
             seen_at[cob] = msg.timestamp
@@ -400,17 +445,20 @@ _SDO_EXPEDITED = struct.Struct("<BHBI")
 @dataclass
 class _LoggedSdo:
     """What the log's expedited SDO frames say: 0x6076 uploaded from each drive (mN m, node id → value),
-    and 0x1006 the master downloaded to each node (µs)."""
+    and 0x1006 the master downloaded to each node (µs); and the SYNC frames' time stamps (s)."""
 
     rated_mnm: dict[int, int] = field(default_factory=dict)
     cycle_period_us: dict[int, int] = field(default_factory=dict)
+    sync_stamps: list[float] = field(default_factory=list)
 
 
-def _logged_sdo(path: Path) -> _LoggedSdo:
-    """One pass over the log for the SDO values the decode uses."""
+def _logged_sdo(path: Path, sync_id: int = SYNC_COB_ID) -> _LoggedSdo:
+    """One pass over the log for the SDO values and SYNC time stamps the decode uses."""
     logged = _LoggedSdo()
     for msg in _frames(_open_log(path), path):
         cob = msg.arbitration_id
+        if cob == sync_id and not msg.is_extended_id and not msg.is_remote_frame and not msg.is_error_frame:
+            logged.sync_stamps.append(float(msg.timestamp))
         if msg.is_extended_id or len(msg.data) != 8:
             continue
         command, index, sub, value = _SDO_EXPEDITED.unpack(bytes(msg.data))

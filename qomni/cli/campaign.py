@@ -183,8 +183,11 @@ def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
     _print_parameters(result)
     if result.not_physical():
         # the recording and identification.json stand; a forward simulation of this model would not
+        remedy = result.not_physical_remedy()
+        if remedy == "identify with --estimator consistent":
+            remedy = f"run 'qomni identify {run_dir} --estimator consistent', then 'qomni validate {run_dir}'"
         console.print(f"validation skipped: the model is not physical ({', '.join(result.not_physical())}); "
-                      f"run 'qomni identify {run_dir} --estimator consistent', then 'qomni validate {run_dir}'")
+                      + remedy)
         _plots(run_dir, result, None)
         return
     validation = guarded(lambda: _identification_errors(lambda: validate_run(run_dir)))
@@ -213,7 +216,7 @@ def _print_parameters(result) -> None:
         console.print("held at their physical bound (σ = 0): " + ", ".join(result.estimator_info["active_bounds"]))
     if result.not_physical():
         console.print(f"warning: the estimate is not physical ({', '.join(result.not_physical())}); validation, "
-                      "FMU export and the twin refuse it: identify with --estimator consistent")
+                      f"FMU export and the twin refuse it: {result.not_physical_remedy()}")
     spikes = result.spikes
     if spikes.get("total_corrupt"):
         columns = ", ".join(f"{k} {v}" for k, v in spikes["corrupt_samples"].items() if v)

@@ -232,7 +232,7 @@ def decode(
         cycles = decode_log(log, encoder_increments=drive.encoder_increments,
                             steering_sensor_bits=drive.steering_sensor_bits, cycle_time=drive.cycle_time,
                             rated_torque=drive.rated_torque, files=files, report=report)
-        rows, eps, last = 0, 1e-9, -float("inf")
+        rows, outside, eps, last = 0, 0, 1e-9, -float("inf")
         partial.unlink(missing_ok=True)
         with SignalWriter(partial) as writer:
             for cycle in cycles:
@@ -245,6 +245,7 @@ def decode(
                 if segments:
                     seg = next((s for s in segments if s["t_start"] + eps < t <= s["t_end"] + eps), None)
                     if seg is None:
+                        outside += 1
                         continue
                     name, k = seg["name"], seg["k"]
                 else:
@@ -270,6 +271,8 @@ def decode(
     meta = dict(meta, source=f"decoded from {log}", decoded={
         "log": str(log), "frames": report.frames, "cycles": report.cycles, "rows": rows,
         "incomplete_cycles": report.incomplete, "sync_restored": report.sync_restored,
+        "lost_cycles": report.lost_cycles, "real_time_clock": report.real_time_clock,
+        "cycles_outside_segments": outside,
         "duplicate_frames": report.duplicates, "sessions": report.sessions, "warnings": report.warnings,
         "rated_torque": {"value": report.rated_torque, "unit": "N m", "source": report.rated_torque_source},
         "mapping": {str(k): str(v) for k, v in files.items()}})
@@ -278,11 +281,16 @@ def decode(
                   f"{report.frames} frames into {out / SIGNALS}: {rows} rows"
                   + (f"; {report.sync_restored} SYNC missing from the log restored where a synchronous TPDO "
                      "came again" if report.sync_restored else "")
+                  + (f"; {report.lost_cycles} whole cycle(s) missing from the log (SYNC and TPDOs) where its SYNC "
+                     "clock skips them: the later rows keep their time" if report.lost_cycles else "")
                   + (f"; {report.duplicates} frame(s) logged twice dropped" if report.duplicates else "")
+                  + (f"; {outside} cycle(s) outside the segments of {metadata} left out (the log's session "
+                     "before or after the campaign; a log of another campaign than the metadata's is refused "
+                     "by every reader of the run where a step's steering is off its mode)" if outside else "")
                   + ("" if segments else "; no --metadata segments, so every row is step 'recorded' "
                      "(qomni identify needs the campaign's step names)")
                   + ("; the rows of the skipped cycles are missing, and every reader of the run refuses it, "
-                     "naming the line" if report.incomplete else ""))
+                     "naming the line" if report.incomplete or report.lost_cycles else ""))
 
 
 @app.command()
