@@ -302,3 +302,28 @@ class IdentificationResult:
             spikes=dict(json_object(d.get("spikes", {}), "spikes")),
         )
 
+
+
+def parameter_differences(model: IdentificationResult, other: IdentificationResult) -> dict[str, dict]:
+    """How another vehicle's identification ``other`` differs from ``model``, parameter by parameter.
+
+    Two vehicles differ in every parameter, which no unmodelled-effect hypothesis describes (a model of a
+    vehicle 464 kg heavier named a floor incline on the lighter one's run); their identifications say it
+    directly. The two campaigns' estimates are independent, so σ = √(σ_model² + σ_other²). σ counts the
+    noise, not the identification's own bias (C_r up to 8 % on the prototype's full campaign,
+    docs/identification.md), which two campaigns of one vehicle share only in part.
+
+    Returns:
+        {name: {"model", "other", "difference" (other − model), "relative" (to the model's value), "std",
+        "z"}} for the ten parameters of p₁ (units: :data:`qomni.conventions.PARAMETER_UNITS`), and
+        ``B_w`` with ``std`` and ``z`` null (each fit holds its B_w fixed).
+    """
+    rows = {}
+    for name in P1_NAMES:
+        a, b = float(model.values[name]), float(other.values[name])
+        std = float(np.hypot(model.std[name], other.std[name]))
+        rows[name] = {"model": a, "other": b, "difference": b - a, "relative": (b - a) / a if a else None,
+                      "std": std, "z": (b - a) / std if std > 0 else None}
+    rows["B_w"] = {"model": model.B_w, "other": other.B_w, "difference": other.B_w - model.B_w,
+                   "relative": (other.B_w - model.B_w) / model.B_w if model.B_w else None, "std": None, "z": None}
+    return rows

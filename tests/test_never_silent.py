@@ -461,6 +461,27 @@ def test_the_remedy_for_a_model_that_is_not_physical_fits_how_far_below_zero_it_
     assert "consistent fit holds them at their bound; where no bound" in at_bound.not_physical_remedy()
 
 
+def test_another_vehicles_model_is_compared_parameter_by_parameter(run_dir, tmp_path):
+    from qomni.cli.diagnose import _vehicle_difference
+
+    other = tmp_path / "heavier"
+    other.mkdir()
+    shutil.copy(run_dir / "metadata.json", other)
+    out = tmp_path / "gap"
+    out.mkdir()
+    _vehicle_difference(run_dir / "identification.json", other, out)       # the data's run not identified
+    assert not (out / "vehicle_difference.json").exists()
+    data = json.loads((run_dir / "identification.json").read_text())
+    data["parameters"]["m_ch"]["value"] += 464.0                           # the heavy platform's difference
+    (other / "identification.json").write_text(json.dumps(data))
+    _vehicle_difference(run_dir / "identification.json", other, out)
+    rows = json.loads((out / "vehicle_difference.json").read_text())["parameters"]
+    m_ch = rows["m_ch"]
+    assert m_ch["difference"] == pytest.approx(464.0) and m_ch["z"] == pytest.approx(464.0 / m_ch["std"])
+    assert m_ch["std"] == pytest.approx(np.sqrt(2) * data["parameters"]["m_ch"]["std"])
+    assert all(row["difference"] == 0 for name, row in rows.items() if name != "m_ch")
+
+
 def test_a_campaign_whose_estimate_is_not_physical_keeps_it_and_skips_the_validation(run_dir, monkeypatch, capsys):
     import qomni.cli.campaign as campaign_cli
     import qomni.ident.identify as identify_module

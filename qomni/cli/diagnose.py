@@ -73,12 +73,46 @@ def diagnose(
         console.print(Text(f"not named beside it: {effect} (p = {p:.2g}, level {level:.2g}): "
                            + "; ".join(failed)))
     json_path, html_path = write_report(d, out)
+    if other_vehicle and not from_data:
+        _vehicle_difference(model, data, out)
     console.print(Text(f"reference run: {d.reference}" + (f" and {len(d.reference_repeats)} repeat(s) of it"
                                                           if d.reference_repeats else "")))
     twin_parameters = reference_parameters(d.reference)
     if twin_parameters:
         console.print(Text(f"twin made from: {twin_parameters}"))
     console.print(f"written {json_path} and {html_path}")
+
+
+#: |z| from which two vehicles' identified parameters are printed as differing (two-sided 0.3 %).
+DIFFERENCE_Z = 3.0
+
+
+def _vehicle_difference(model: Path, data: Path, out: Path) -> None:
+    """With --other-vehicle: the two vehicles' identified parameters side by side (data − model, σ, z),
+    written to OUT/vehicle_difference.json, where the data's run holds its own identification."""
+    from qomni.ident.result import parameter_differences
+    from qomni.ident.rundir import IDENTIFICATION_JSON, load_identification, write_json
+
+    if not (data / IDENTIFICATION_JSON).is_file():
+        console.print(Text(f"the gap holds the two vehicles' difference; identify the data's run (qomni identify "
+                           f"{data}) to compare their parameters"))
+        return
+    rows = guarded(lambda: parameter_differences(load_identification(model), load_identification(data)))
+    table = Table(title="The two vehicles' identified parameters (data − model)")
+    for col in ("Name", "Model", "Data", "Difference", "Relative", "σ", "z"):
+        table.add_column(col, justify="left" if col == "Name" else "right")
+    for name, row in rows.items():
+        z = row["z"]
+        table.add_row(name, f"{row['model']:.4g}", f"{row['other']:.4g}", f"{row['difference']:+.4g}",
+                      "-" if row["relative"] is None else f"{100 * row['relative']:+.1f} %",
+                      "fixed" if row["std"] is None else f"{row['std']:.3g}",
+                      "-" if z is None else f"{z:+.1f}" + (" *" if abs(z) >= DIFFERENCE_Z else ""))
+    console.print(table)
+    differ = [name for name, row in rows.items() if row["z"] is not None and abs(row["z"]) >= DIFFERENCE_Z]
+    console.print(Text(f"the vehicles differ (|z| ≥ {DIFFERENCE_Z:g}) in {', '.join(differ) or 'no parameter'}"))
+    write_json(out / "vehicle_difference.json", {"model": str(model), "data": str(data),
+                                                 "z_threshold": DIFFERENCE_Z, "parameters": rows})
+    console.print(Text(f"written {out / 'vehicle_difference.json'}"))
 
 
 def _twin_references(model: Path, data: Path, cache: Path, datasheet: Optional[Path], runs: int) -> list[Path]:
