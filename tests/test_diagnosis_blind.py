@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from own_twin import diagnose_against_own_twin
 from qomni.blind_suite import Case, run_suite, score
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -127,23 +128,13 @@ def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
     assert not (tmp_path / "d").exists()
 
 
-def _diagnose_against_own_twin(run, out) -> dict:
-    """``qomni diagnose`` of a run against the twin of the model identified on it (the CLI runs the twin's
-    campaign into ``out``); its gap.json."""
-    result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
-                             str(run / "identification.json"), "--data", str(run), "--out", str(out),
-                             "--no-simulate"], capture_output=True, text=True)
-    assert result.returncode == 0, result.stdout + result.stderr
-    return json.loads((out / "gap.json").read_text())
-
-
 @pytest.mark.slow
 def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_not_there(suite):
     """The real user's mode: no ideal reference, only the run, the model identified from it and the model's
     digital twin, whose campaign (same settings) the CLI runs and keeps next to the report."""
     work, _ = suite
     run, out = work / "ideal", work / "ideal" / "twin_gap"
-    gap = _diagnose_against_own_twin(run, out)
+    gap = diagnose_against_own_twin(run, out)
     assert gap["reference"] == str(out / "twin_reference") and gap["data_run"]["status"] == "complete"
     assert gap["reference_kind"] == "digital twin"
     assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
@@ -217,7 +208,7 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
     (p = 3·10⁻⁴ against its bar of 6·10⁻⁴); the lifted breakaway test withdraws it (docs/diagnosis.md,
     Limits)."""
     work, _ = suite
-    gap = _diagnose_against_own_twin(work / "torque", work / "torque" / "twin_gap")
+    gap = diagnose_against_own_twin(work / "torque", work / "torque" / "twin_gap")
     assert gap["model_identified_on_data"] is True
     assert gap["accepted"][0]["name"] == "torque_constant_error", gap["verdict"]
     assert all(a["name"] != "torque_constant_error" for a in gap["accepted"][1:]), gap["verdict"]
@@ -236,84 +227,6 @@ def test_an_effect_the_identification_absorbs_in_part_is_named_against_the_runs_
                for r in rounds)
     assert all(set(t["gates"]) == {"p_below_level", "present", "physical", "shares_above_0", "affected_channel"}
                for r in rounds for t in r["tested"])
-
-
-@pytest.mark.slow
-def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_wheels_friction(tmp_path):
-    """A same-run identification puts rolling resistance into d_cw and the twin rolls with it: the
-    residuals alone cannot tell it. The campaign's single-axis run measured the wheels lifted, without
-    it; holding d_cw by that measurement, the diagnosis names the rolling resistance with its c_rr."""
-    from qomni.blind_suite import run_campaign
-
-    run = tmp_path / "rolling"
-    run_campaign(run, {"rolling_resistance": {"c_rr": 0.008}}, seed=35, quick=True)
-    gap = _diagnose_against_own_twin(run, run / "twin_gap")
-    assert [a["name"] for a in gap["accepted"]] == ["rolling_resistance"], gap["verdict"]
-    c_rr = gap["accepted"][0]
-    assert c_rr["ci"][0] <= 0.008 <= c_rr["ci"][1] and c_rr["magnitude"] == pytest.approx(0.008, rel=0.15)
-    assert set(gap["lifted_wheel_friction"]) == {"d_vw", "d_cw"}
-    assert "lifted vehicle" in gap["base_parameters"]
-
-
-@pytest.mark.slow
-def test_a_small_payload_is_named_against_the_runs_own_twin_sample_for_sample(tmp_path):
-    """80 kg at (−0.10, 0.15) m (first moment (−8, 12) kg m): the same-run model holds its mass and yaw
-    inertia, and what is left (the first moment's forces in the lane change and the arcs) is a few newtons
-    under the model's own 12 N of lane-change residual. The twin ran the data's campaign, so that residual
-    is diagnosed beyond the twin's at the same samples (diagnosis/paired.py), and the payload is named
-    with its lateral first moment m_y_c, which the quick campaign determines (to about ±3 kg m); its
-    longitudinal one it leaves open (an interval of hundreds of kg m, holding the truth)."""
-    from qomni.blind_suite import run_campaign
-
-    run = tmp_path / "payload"
-    run_campaign(run, {"payload": {"mass": 80.0, "com_offset": [-0.1, 0.15], "height": 0.2}}, seed=36, quick=True)
-    gap = _diagnose_against_own_twin(run, run / "twin_gap")
-    assert "lane_change/x_ch" in gap["paired_channels"]
-    assert [a["name"] for a in gap["accepted"]] == ["payload"], gap["verdict"]
-    payload = gap["accepted"][0]
-    lo, hi = payload["coefficients_ci"]["m_y_c"]
-    assert lo <= 12.0 <= hi and hi - lo < 12.0, payload["coefficients_ci"]
-    lo, hi = payload["coefficients_ci"]["m_x_c"]
-    assert lo <= -8.0 <= hi, payload["coefficients_ci"]
-    assert payload["ci"][0] <= 14.4 <= payload["ci"][1]
-
-
-@pytest.mark.slow
-def test_heavy_steering_units_are_named_against_the_runs_own_twin_by_the_arcs(tmp_path):
-    """12 kg wheels a = 0.08 m outward of the steering axes: the same-run model holds their yaw inertia at
-    the rotation's steering angles in C_ch, and the twin yaws with it. The arcs yaw the chassis with the
-    inner units turned the other way, where the wheels' inertia about the chassis centre is 0.34 kg m²
-    per kg lower (docs/diagnosis.md); the arcs to both sides tell it from a payload's first moment, whose
-    share changes sign with the turning direction."""
-    from qomni.blind_suite import run_campaign
-
-    run = tmp_path / "heavy"
-    run_campaign(run, {"heavy_steering_units": {"steering_unit_mass": 30.0, "wheel_mass": 12.0}}, seed=37,
-                 quick=True)
-    gap = _diagnose_against_own_twin(run, run / "twin_gap")
-    assert {"arc_left/x_ch", "arc_right/x_ch"} <= set(gap["paired_channels"])
-    assert [a["name"] for a in gap["accepted"]] == ["heavy_steering_units"], gap["verdict"]
-    m_w = gap["accepted"][0]
-    assert m_w["ci"][0] <= 12.0 <= m_w["ci"][1] and m_w["ci"][0] > 4.0
-
-
-@pytest.mark.slow
-def test_a_report_lag_beside_an_actuator_delay_is_told_apart_by_the_set_point(tmp_path):
-    """A 4 ms report lag beside an 8 ms actuator delay: the ground's data show their difference, a 4 ms
-    delay; the torque actual lags the master's set-point by the report lag alone (diagnosis/
-    setpoint_timing.py), so both are named with their sizes."""
-    from qomni.blind_suite import run_campaign
-
-    run = tmp_path / "timing"
-    run_campaign(run, {"torque_report_lag": {"lag": 0.004}, "actuator_delay": {"delay": 0.008}}, seed=38,
-                 quick=True)
-    gap = _diagnose_against_own_twin(run, run / "twin_gap")
-    named = {a["name"]: a for a in gap["accepted"]}
-    assert set(named) == {"torque_report_lag", "actuator_delay"}, gap["verdict"]
-    assert named["torque_report_lag"]["magnitude"] == pytest.approx(0.004, abs=1e-4)
-    assert named["actuator_delay"]["magnitude"] == pytest.approx(0.008, abs=1e-3)
-    assert gap["data_run"]["setpoint_lag"]["cycles"] == pytest.approx(2.0, abs=0.05)
-    assert gap["data_run"]["report_lag_hypothesis"] == "fitted"
 
 
 def test_a_hypothesis_to_withhold_must_be_in_the_library():
