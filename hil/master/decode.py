@@ -25,11 +25,11 @@ most once per SYNC) sent again before the next SYNC: the cycle boundary is resto
 (identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). Where the
 log's SYNC time stamps run on the T_s grid (:func:`_real_time_clock`: a real-time master's log), a SYNC
 that comes n + 1 periods after the one before (within :data:`GRID_TOLERANCE`) says that n cycles are
-missing from the log, SYNC and TPDOs alike: the count skips them (:attr:`DecodeReport.lost_cycles`), so later cycles keep their time
-and the readers of the run refuse the gap, naming the line. A lock-step recording's stamps are not
-real time, and its count is the SYNCs logged. A log cut
-while it was written (a BLF shorter than its header announces, a text log whose last line has no line
-end) is decoded up to the cut, with a warning in :attr:`DecodeReport.warnings`.
+missing from the log, SYNC and TPDOs alike: the count skips them (:attr:`DecodeReport.lost_cycles`), so
+later cycles keep their time and the readers of the run refuse the gap, naming the line. A lock-step
+recording's stamps are not real time, and its count is the SYNCs logged. A log cut while it was written
+(a BLF shorter than its header announces, a text log whose last line has no line end) is decoded up to
+the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
 from __future__ import annotations
 
