@@ -149,13 +149,8 @@ def check_ranges(signals: Signals, max_torque: float, steering_limit: float, pat
 
 
 def configuration_error(alpha: np.ndarray, k: int, geometry) -> np.ndarray:
-    """Distance (rad) of steering angles ``alpha`` (N, 2) from mode k's configuration of (9), shape (N,):
-    k = 3 and 4 max |α − :func:`.kinematics.mode_alpha`|, k = 2 the distance from the ICR manifold
-    (:func:`.kinematics.icr_residual`, +inf where no α_v reaches it), k = 1 (free steering) zeros."""
-    if k == 1:
-        return np.zeros(len(alpha))
-    if k == 2:
-        return kinematics.icr_residual(alpha, geometry)
+    """Distance (rad) of steering angles ``alpha`` (N, 2) from the fixed configuration of mode k = 3 or 4
+    of (9), max |α − :func:`.kinematics.mode_alpha`| per row, shape (N,): each wheel's heading error."""
     return np.max(np.abs(alpha - kinematics.mode_alpha(k, geometry)), axis=1)
 
 

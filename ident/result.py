@@ -22,6 +22,8 @@ MAX_CONDITION = RANK_TOL ** -2
 #: σ below zero beyond which a parameter no vehicle can have is not a small parameter's noise
 #: (:meth:`IdentificationResult.not_physical_remedy`): a one-sided 3 σ bound, 0.13 % of normal draws.
 NOT_PHYSICAL_Z = 3.0
+#: :meth:`IdentificationResult.not_physical_remedy` where a bound mends the estimate.
+BOUND_REMEDY = "identify with --estimator consistent"
 
 
 @dataclass
@@ -141,7 +143,7 @@ class IdentificationResult:
                     "but does not mend the cause")
         if self.estimator == "consistent":
             return f"the physically consistent fit holds them at their bound; where no bound is expected, {cause}"
-        return "identify with --estimator consistent"
+        return BOUND_REMEDY
 
     def as_dict(self) -> dict[str, float]:
         """{name: value} for all 11 parameters."""

@@ -5,6 +5,8 @@ import json
 import time
 import uuid
 from dataclasses import asdict, replace
+from functools import partial
+from pathlib import Path
 
 import can
 import numpy as np
@@ -140,19 +142,20 @@ def test_a_log_that_lost_a_tpdo_decodes_and_its_run_is_refused_where_the_cycle_i
         load_run(out)
 
 
+def _decode_lines(log: Path, lines: list[str]) -> tuple[list, DecodeReport]:
+    """``lines`` written to ``log`` and decoded: the cycles and the decode's report."""
+    log.write_text("\n".join(lines) + "\n")
+    report = DecodeReport()
+    return list(decode_log(log, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                           report=report)), report
+
+
 def test_a_log_that_lost_a_sync_decodes_every_cycle_at_its_time(session, tmp_path):
     """A SYNC frame the logger lost: the next cycle's synchronous TPDOs come a second time before any SYNC,
     which CiA 301 forbids, so the cycle boundary is restored there and every later row keeps its time (not
     one cycle early). The same frame logged twice is dropped, not taken for a cycle."""
     _, logs, _, _ = session
-
-    def decode(lines: list[str]) -> tuple[list, DecodeReport]:
-        log = tmp_path / "edited.log"
-        log.write_text("\n".join(lines) + "\n")
-        report = DecodeReport()
-        return list(decode_log(log, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
-                               report=report)), report
-
+    decode = partial(_decode_lines, tmp_path / "edited.log")
     lines = logs[1].read_text().splitlines()
     intact, _ = decode(lines)
     syncs = [i for i, line in enumerate(lines) if " 080#" in line]
@@ -185,14 +188,7 @@ def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, t
     so the later cycles keep their time and the missing rows are there to be refused; a lock-step log's
     stamps are not real time and its cycles are counted as logged."""
     _, logs, _, _ = session
-
-    def decode(lines: list[str]) -> tuple[list, DecodeReport]:
-        log = tmp_path / "edited.log"
-        log.write_text("\n".join(lines) + "\n")
-        report = DecodeReport()
-        return list(decode_log(log, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
-                               report=report)), report
-
+    decode = partial(_decode_lines, tmp_path / "edited.log")
     lines = _real_time(logs[1].read_text().splitlines())
     intact, report = decode(lines)
     assert report.real_time_clock and report.lost_cycles == 0 and len(intact) == N_CYCLES

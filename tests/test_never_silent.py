@@ -311,16 +311,22 @@ def test_a_motion_mode_that_is_not_one_is_refused(run_dir, value):
         read_signals(run_dir / "signals.csv")
 
 
+def _set_mode(run: Path, step: str, k: int) -> list[int]:
+    """The motion mode column of ``step``'s rows in signals.csv set to ``k``; their line indices."""
+    lines = (run / "signals.csv").read_text().splitlines()
+    rows = _rows_of(run, step)
+    for at in rows:
+        cells = lines[at].split(",")
+        cells[2] = str(k)
+        lines[at] = ",".join(cells)
+    (run / "signals.csv").write_text("\n".join(lines) + "\n")
+    return rows
+
+
 def test_a_row_in_another_motion_mode_than_its_step_is_refused(run_dir):
     # each step is fitted with its first row's k: the rotation's rows relabelled mode 3 would fit mode 3's
     # regressor to a rotation
-    lines = (run_dir / "signals.csv").read_text().splitlines()
-    rows = _rows_of(run_dir, "rotation")
-    for at in rows:
-        cells = lines[at].split(",")
-        cells[2] = "3"
-        lines[at] = ",".join(cells)
-    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    rows = _set_mode(run_dir, "rotation", 3)
     with pytest.raises(RecordingError, match=rf"signals.csv:{rows[0] + 1}: motion mode k = 3 inside step "
                                              r"'rotation', which the metadata records in mode k = 4"):
         load_run(run_dir)
@@ -329,13 +335,7 @@ def test_a_row_in_another_motion_mode_than_its_step_is_refused(run_dir):
 def test_a_step_whose_steering_is_off_its_modes_configuration_is_refused(run_dir):
     # rows and metadata agree on the mode, but the steering says the rows are another step's: a log
     # decoded with another campaign's metadata lays its steps over the wrong rows
-    lines = (run_dir / "signals.csv").read_text().splitlines()
-    rows = _rows_of(run_dir, "rotation")
-    for at in rows:
-        cells = lines[at].split(",")
-        cells[2] = "3"
-        lines[at] = ",".join(cells)
-    (run_dir / "signals.csv").write_text("\n".join(lines) + "\n")
+    rows = _set_mode(run_dir, "rotation", 3)
     meta = json.loads((run_dir / "metadata.json").read_text())
     for seg in meta["segments"]:
         if seg["name"] == "rotation":

@@ -241,7 +241,7 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     if not period or period <= 0:
         raise DecodeError("no cycle time: give the data sheet's T_s (0x1006 is not in the mapping files)")
     report = report if report is not None else DecodeReport()
-    logged = _logged_sdo(path, mapping.sync_cob_id)
+    logged = _scan_log(path, mapping.sync_cob_id)
     _check_period(path, logged, period)
     rated = _rated_torques(path, mapping, rated_torque, report, logged)
     report.real_time_clock = _real_time_clock(np.asarray(logged.sync_stamps), period)
@@ -443,7 +443,7 @@ _SDO_EXPEDITED = struct.Struct("<BHBI")
 
 
 @dataclass
-class _LoggedSdo:
+class _LogScan:
     """What the log's expedited SDO frames say: 0x6076 uploaded from each drive (mN m, node id → value),
     and 0x1006 the master downloaded to each node (µs); and the SYNC frames' time stamps (s)."""
 
@@ -452,9 +452,9 @@ class _LoggedSdo:
     sync_stamps: list[float] = field(default_factory=list)
 
 
-def _logged_sdo(path: Path, sync_id: int = SYNC_COB_ID) -> _LoggedSdo:
+def _scan_log(path: Path, sync_id: int = SYNC_COB_ID) -> _LogScan:
     """One pass over the log for the SDO values and SYNC time stamps the decode uses."""
-    logged = _LoggedSdo()
+    logged = _LogScan()
     for msg in _frames(_open_log(path), path):
         cob = msg.arbitration_id
         if cob == sync_id and not msg.is_extended_id and not msg.is_remote_frame and not msg.is_error_frame:
@@ -469,7 +469,7 @@ def _logged_sdo(path: Path, sync_id: int = SYNC_COB_ID) -> _LoggedSdo:
     return logged
 
 
-def _check_period(path: Path, logged: _LoggedSdo, period: float) -> None:
+def _check_period(path: Path, logged: _LogScan, period: float) -> None:
     """The decoded time is the SYNC count × ``period``: a ``period`` other than the communication cycle
     period 0x1006 the log's master wrote to its nodes would stretch every time and rate by their ratio.
 
@@ -482,7 +482,7 @@ def _check_period(path: Path, logged: _LoggedSdo, period: float) -> None:
 
 
 def _rated_torques(path: Path, mapping: _Mapping, given, report: DecodeReport,
-                   logged: _LoggedSdo) -> np.ndarray:
+                   logged: _LogScan) -> np.ndarray:
     """0x6076 per drive [N m]: from the log's SDO upload responses, else the DCFs, else ``given``.
 
     Raises: DecodeError: no 0x6076 anywhere."""

@@ -183,8 +183,10 @@ def _identify_and_report(run_dir: Path, estimator: str, torque_lag) -> None:
     _print_parameters(result)
     if result.not_physical():
         # the recording and identification.json stand; a forward simulation of this model would not
+        from qomni.ident.result import BOUND_REMEDY
+
         remedy = result.not_physical_remedy()
-        if remedy == "identify with --estimator consistent":
+        if remedy == BOUND_REMEDY:
             remedy = f"run 'qomni identify {run_dir} --estimator consistent', then 'qomni validate {run_dir}'"
         console.print(f"validation skipped: the model is not physical ({', '.join(result.not_physical())}); "
                       + remedy)
