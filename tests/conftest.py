@@ -15,6 +15,21 @@ from doubles import FakePlant, Master
 from qomni.hil.device.server import VehicleServer
 
 
+def pytest_configure(config):
+    # Under --dist loadfile, xdist hands out the files with the most tests first by default. The files that
+    # run campaigns hold few tests but most of the suite's time; handed out last, one of them leaves a
+    # single worker running alone at the end. The collection order below is kept instead.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    """The files holding a test marked ``slow`` first; otherwise the files and their tests in their order."""
+    slow = {item.path for item in items if item.get_closest_marker("slow")}
+    files = {path: k for k, path in enumerate(dict.fromkeys(item.path for item in items))}
+    items.sort(key=lambda item: (item.path not in slow, files[item.path]))
+
+
 @pytest.fixture
 def channel():
     return f"hil-test-{uuid.uuid4().hex[:10]}"

@@ -15,7 +15,7 @@ from qomni.diagnosis.hypotheses.backlash import BACKLASH, TRANSITION
 from qomni.ident.rundir import load_identification, load_repaired_run
 from qomni.suite.runner import run_campaign
 
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"), pytest.mark.slow]  # two campaigns
 
 GAP = 0.015  # rad, wheel side
 CHASSIS_STEPS = ("straight", "rotation")

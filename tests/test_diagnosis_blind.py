@@ -33,6 +33,16 @@ def suite(tmp_path_factory):
     return work, results
 
 
+@pytest.fixture(scope="module")
+def ideal_twin(suite):
+    """The ideal case's twin campaign, run where ``qomni diagnose --out RUN/twin_gap`` keeps its cache; the
+    tests diagnosing the case against its twin reuse it instead of running it again."""
+    from qomni.twin import twin_reference
+
+    run = suite[0] / "ideal"
+    return twin_reference(run / "identification.json", run, run / "twin_gap" / "twin_reference")
+
+
 def test_no_case_failed(suite):
     _, results = suite
     assert not [r.error for r in results.values() if r.error]
@@ -129,7 +139,7 @@ def test_diagnose_cli_reports_a_missing_model_clearly(tmp_path, suite):
 
 
 @pytest.mark.slow
-def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_not_there(suite):
+def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_not_there(suite, ideal_twin):
     """The real user's mode: no ideal reference, only the run, the model identified from it and the model's
     digital twin, whose campaign (same settings) the CLI runs and keeps next to the report."""
     work, _ = suite
@@ -152,7 +162,8 @@ def test_a_run_diagnosed_against_its_own_digital_twin_names_no_effect_that_is_no
 
 
 @pytest.mark.slow
-def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_effect(suite, tmp_path):
+def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_effect(suite, ideal_twin,
+                                                                                       tmp_path):
     """``--twin-runs 3``: the twin's campaign run on three noise draws (the first is the single reference
     run, the others its siblings); the paired channels are diagnosed beyond the runs' mean residual,
     whose noise is a third of one run's, so the clean run's held-out residual left in them is lower than
@@ -163,6 +174,8 @@ def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_
 
     work, _ = suite
     run, out = work / "ideal", tmp_path / "twin_gap3"
+    shutil.copytree(ideal_twin, out / "twin_reference")          # run 0 from the cache; runs 1 and 2 afresh
+    cached = (out / "twin_reference" / "signals.csv").stat().st_mtime_ns
     result = subprocess.run([sys.executable, "-m", "qomni.cli", "diagnose", "--model",
                              str(run / "identification.json"), "--data", str(run), "--out", str(out),
                              "--no-simulate", "--twin-runs", "3"], capture_output=True, text=True)
@@ -170,6 +183,7 @@ def test_repeats_of_the_twins_campaign_lower_the_paired_floor_without_naming_an_
     gap = json.loads((out / "gap.json").read_text())
     assert gap["reference"] == str(out / "twin_reference")
     assert gap["reference_repeats"] == [str(out / "twin_reference_1"), str(out / "twin_reference_2")]
+    assert (out / "twin_reference" / "signals.csv").stat().st_mtime_ns == cached    # reused, not run again
     assert gap["verdict"] == "no significant unmodelled effect", gap["verdict"]
     metas = [json.loads((out / d / "metadata.json").read_text())
              for d in ("twin_reference", "twin_reference_1", "twin_reference_2")]

@@ -34,6 +34,8 @@ from qomni.ident.regressor_rows import VELOCITY_THRESHOLD, correlation_lag, iden
 from qomni.ident.rundir import load_run
 from qomni.ident.torque_timing import estimate_torque_lag, shift_torque
 
+pytestmark = pytest.mark.slow  # every test reads the module's campaign
+
 CHASSIS = ("m_ch", "C_ch", "d_vw", "d_cw")
 
 
