@@ -142,3 +142,6 @@ class VehicleDescription:
         if 2 * bd.wheel_transverse_inertia < t.B_w:
             raise DescriptionError(
                 f"{self.source}: body.wheel_transverse_inertia must be >= B_w/2 (triangle inequality)")
+        from .urdf import body_inertias     # the bodies [body] describes hold the truth: no negative inertia
+
+        body_inertias(self)

@@ -17,9 +17,10 @@ What the twin is made of:
   twin reference is then made from the same run re-identified with the ``consistent`` estimator (every
   inertia, mass and friction ≥ 0, docs/identification.md) at the model's torque lag, and ``twin.json``
   in the twin's directory says so (``parameters``);
-* ``[body]``'s contact (tyre friction, contact stiffness and damping, chassis height, wheel transverse
-  inertia) and ``[noise]``: the built-in prototype's, since neither a data sheet nor an identification
-  gives them.
+* ``[body]``'s contact (tyre friction, contact stiffness and damping, chassis height) and ``[noise]``: the
+  built-in prototype's, since neither a data sheet nor an identification gives them; its masses the ideal
+  vehicle's, and the wheels' transverse inertia the prototype's where the identified steering inertias
+  hold it (:func:`_wheel_transverse_inertia`: a smaller vehicle's is less).
 
 The twin's *reference run* (:func:`twin_reference`) draws its torque ripple and sensor noise from a
 stream of its own (:func:`reference_seed`), not from the campaign's seed. A real vehicle's noise is never
@@ -44,8 +45,9 @@ import numpy as np
 
 from qomni.conventions import PARAMETER_NAMES
 from qomni.datasheet import DataSheet, DataSheetError, vehicle_differences
-from qomni.emulator.description import Truth, VehicleDescription
+from qomni.emulator.description import Body, DescriptionError, Truth, VehicleDescription
 from qomni.emulator.effects import EffectSet
+from qomni.emulator.effects.base import IDEAL_STEERING_UNIT_MASS, IDEAL_WHEEL_MASS
 from qomni.ident.result import IdentificationResult
 from qomni.ident.recording import RecordingError
 from qomni.ident.rundir import (METADATA, SIGNALS, TWIN_STAMP, RunDirectoryError, check_identification_vehicle,
@@ -82,12 +84,29 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
         raise TwinError(f"{source}: identified {', '.join(wrong)}: not physical (an inertia or mass not "
                         f"positive, or a negative friction); {result.not_physical_remedy()}")
     _check_order_of_magnitude(truth, sheet, source)
-    body = replace(prototype.body, wheel_transverse_inertia=max(prototype.body.wheel_transverse_inertia,
-                                                                truth.B_w / 2))
+    body = replace(prototype.body, steering_unit_mass=IDEAL_STEERING_UNIT_MASS, wheel_mass=IDEAL_WHEEL_MASS,
+                   wheel_transverse_inertia=_wheel_transverse_inertia(truth, sheet, prototype.body))
     description = replace(prototype, datasheet=replace(sheet, name=f"twin of {sheet.name}"), truth=truth,
                           body=body, source=source)
-    description._check()
+    try:
+        description._check()
+    except DescriptionError as exc:
+        raise TwinError(f"{source}: the identified inertias make no rigid-body vehicle: {exc}") from exc
     return description
+
+
+#: The share of a steering unit's inertia (C_l/2, C_r/2) the twin's wheel may take about the steering axis;
+#: the fork keeps the rest. The prototype's own forks keep 28 % of theirs.
+WHEEL_SHARE_OF_UNIT = 0.75
+
+
+def _wheel_transverse_inertia(truth: Truth, sheet: DataSheet, prototype: Body) -> float:
+    """The twin wheels' inertia about a diameter (kg m²): the prototype's, as long as the identified
+    steering inertias leave the forks a quarter of each unit's (:data:`WHEEL_SHARE_OF_UNIT`), else that
+    share of the smaller unit; never below B_w/2, since a wheel's inertia about its axle is at most twice
+    that about a diameter (a smaller vehicle's wheels are lighter in both)."""
+    unit = min(truth.C_l, truth.C_r) / 2 - IDEAL_WHEEL_MASS * sheet.geometry.a ** 2
+    return max(truth.B_w / 2, min(prototype.wheel_transverse_inertia, WHEEL_SHARE_OF_UNIT * unit))
 
 
 #: How far an identified parameter may lie from the data sheet's nominal value, as a factor, before the

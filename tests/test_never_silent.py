@@ -535,6 +535,10 @@ def test_brackets_in_paths_and_messages_are_printed_as_written(tmp_path):
     ("truth", "m_ch", "nan", "must be finite"),
     ("body", "steering_unit_mass", "-5.0", "must be >= 0"),
     ("noise", "torque_measurement", "-0.01", "must be >= 0"),
+    # wheels whose own inertia about the steering axis (8 kg at a = 0.08 m, and 0.17 kg m²) exceeds a left
+    # steering unit's C_l/2 = 0.167 kg m²
+    ("body", "wheel_transverse_inertia", "0.17", "steering inertia 0.3342 too small"),
+    ("body", "steering_unit_mass", "150.0", "C_ch too small for the body masses"),
 ])
 def test_vehicle_descriptions_refuse_non_finite_and_unphysical_values(tmp_path, section, key, value, message):
     text = PROTOTYPE.read_text()
@@ -549,6 +553,16 @@ def test_vehicle_descriptions_refuse_non_finite_and_unphysical_values(tmp_path, 
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DescriptionError, match=message):
         VehicleDescription.load(path)
+
+
+def test_effect_bodies_the_vehicles_steering_inertia_cannot_hold_are_refused_before_anything_runs(tmp_path):
+    """Heavy steering units whose 40 kg wheels alone outweigh a steering unit's inertia about its axis
+    (m_w a² beyond C_l/2): the campaign names the inertia, exits 2 without a traceback and writes nothing."""
+    effects = tmp_path / "units.toml"
+    effects.write_text("[heavy_steering_units]\nsteering_unit_mass = 30.0\nwheel_mass = 40.0\n")
+    result = _cli("campaign", "--out", tmp_path / "out", "--quick", "--effects", effects)
+    assert result.exit_code == 2 and _printed("too small for wheel_mass", result.output), result.output
+    assert not isinstance(result.exception, DescriptionError) and not (tmp_path / "out").exists()
 
 
 def test_a_vehicle_description_whose_section_is_not_a_table_is_refused_naming_it(tmp_path):

@@ -39,6 +39,30 @@ def test_the_twin_runs_as_the_ideal_vehicle_with_the_identified_mass(tmp_path):
         assert emu.effects.names == ()
 
 
+def test_a_smaller_vehicles_twin_gives_its_forks_a_share_of_its_steering_inertia():
+    """Identified steering inertias a third of the prototype's (C_r/2 = 0.07 kg m², the prototype's wheel
+    alone): the twin's wheels take 3/4 of the smaller unit's inertia, no less than B_w/2, so that the twin
+    is a vehicle; the prototype's twin keeps the prototype's wheel. Inertias that cannot hold a wheel of
+    the identified B_w are no twin."""
+    from qomni.emulator.effects.base import IDEAL_WHEEL_MASS, ideal_plan
+    from qomni.emulator.urdf import body_inertias
+
+    sheet, prototype = DataSheet.load(), VehicleDescription.load()
+    assert twin_description(identification(), sheet).body.wheel_transverse_inertia == \
+        prototype.body.wheel_transverse_inertia
+    result = identification()
+    small = replace(result, values={**result.values, "C_l": 0.16, "C_r": 0.14}, B_w=0.06)
+    desc = twin_description(small, sheet)
+    unit = 0.07 - IDEAL_WHEEL_MASS * sheet.geometry.a ** 2
+    assert desc.body.wheel_transverse_inertia == pytest.approx(0.75 * unit)
+    forks = body_inertias(desc, ideal_plan(desc)).fork_izz
+    assert min(forks.values()) == pytest.approx(0.25 * unit) and max(forks.values()) > min(forks.values())
+    with Emulator(desc, effects=EffectSet.ideal(), seed=1) as emu:
+        emu.step(0.01)
+    with pytest.raises(TwinError, match="no rigid-body vehicle.*too small"):
+        twin_description(replace(small, B_w=0.15), sheet)          # B_w/2 beyond what a unit holds
+
+
 def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
     seeds = [reference_seed(s) for s in range(50)]
     assert len(set(seeds)) == 50 and not set(seeds) & set(range(50))

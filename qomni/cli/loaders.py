@@ -47,12 +47,13 @@ def check_effects(description, effects) -> None:
     integrate) run where it is built."""
     if effects is None:
         return
+    from qomni.emulator.description import DescriptionError
     from qomni.emulator.effects import EffectsError
     from qomni.emulator.vehicle import Emulator
 
     try:
         Emulator(description, effects=effects).close()
-    except EffectsError as exc:
+    except (EffectsError, DescriptionError) as exc:    # an effect's bodies that the vehicle's truth cannot hold
         fail(str(exc))
 
 
