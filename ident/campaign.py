@@ -243,7 +243,7 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
                                lane_width=s.lane_width, changes=s.lane_changes,
                                alpha_v_max=s.alpha_max, alpha_dot_max=s.alpha_dot_max,
                                alpha_ddot_max=s.alpha_ddot_max, x_dot_max=s.x_dot_max,
-                               x_ddot_max=s.x_ddot_max),
+                               x_ddot_max=s.x_ddot_max, narrow_to_limits=True),
     ]
     if s.arc_duration > 0:
         steps += [excitation.arc_excitation(

@@ -378,6 +378,7 @@ def lane_change(
     alpha_ddot_max: float | None = None,
     x_dot_max: float | None = None,
     x_ddot_max: float | None = None,
+    narrow_to_limits: bool = False,
 ) -> ExcitationStep:
     """Mode-2 lane change(s) for validation: x_ch(t) and α_v(t), rest to rest, α_v(0) = α_v(T) = 0.
 
@@ -407,6 +408,10 @@ def lane_change(
         Admissible |α̇_v| (rad/s), |α̈_v| (rad/s²); not checked if None.
     x_dot_max, x_ddot_max : float, optional
         Admissible |ẋ_ch| (m/s), |ẍ_ch| (m/s²); not checked if None.
+    narrow_to_limits : bool
+        Where ``lane_width`` needs more steering than ``alpha_v_max``, ``alpha_dot_max`` or
+        ``alpha_ddot_max`` allow, drive the widest lane within them instead of raising. A longer vehicle
+        steers further for the same path (α_v ≈ l·κ/2): the campaign's lane change narrows for it.
 
     Returns
     -------
@@ -416,8 +421,8 @@ def lane_change(
     Raises
     ------
     ValueError
-        If a limit is exceeded, ``changes`` < 1, or the lane width is not reachable with
-        |α_v| ≤ alpha_v_max.
+        If a limit is exceeded (the steering's only without ``narrow_to_limits``), ``changes`` < 1, or the
+        lane width is not reachable with |α_v| ≤ alpha_v_max (without ``narrow_to_limits``).
     """
     if duration <= 0 or distance <= 0 or l <= 0:
         raise ValueError("duration, distance and l must be > 0")
@@ -469,27 +474,33 @@ def lane_change(
     grid = np.linspace(0.0, amp_max, 65)
     vals = np.array([lateral(g) for g in grid])
     above = np.nonzero(vals >= 0.0)[0]
-    if above.size == 0:
+    if above.size == 0 and narrow_to_limits:
+        amp = float(grid[int(np.argmax(vals))])          # the widest lane |α_v| ≤ alpha_v_max reaches
+    elif above.size == 0:
         raise ValueError(
             f"lane width {lane_width} m not reachable with |alpha_v| <= {alpha_v_max:.3g} rad over "
             f"{distance} m in {n} change(s); increase distance or alpha_v_max"
         )
-    i = int(above[0])
-    if vals[i] == 0.0:
-        amp = float(grid[i])
+    elif vals[int(above[0])] == 0.0:
+        amp = float(grid[int(above[0])])
     else:
+        i = int(above[0])
         amp = optimize.brentq(lateral, grid[i - 1], grid[i], xtol=1e-12)
+
+    _, ds_, dds_ = s_func(tau)
+    peaks = (("alpha_dot", amp * np.max(np.abs(ds_)) / duration, alpha_dot_max),
+             ("alpha_ddot", amp * np.max(np.abs(dds_)) / duration**2, alpha_ddot_max))
+    if narrow_to_limits:          # α̇_v and α̈_v are A times the shape's: scale A down to the tighter limit
+        amp *= min([1.0] + [limit / peak for _, peak, limit in peaks if limit is not None and peak > limit])
+    else:
+        for name, peak, limit in peaks:
+            if limit is not None and peak > limit:
+                raise ValueError(f"lane change: peak |{name}_v| {peak:.3g} exceeds {name}_max = {limit} "
+                                 f"({n} change(s) of {lane_width} m over {distance} m in {duration} s)")
 
     def av_func(tau):
         s_, ds_, dds_ = s_func(tau)
         return amp * s_, amp * ds_, amp * dds_
-
-    _, ds_, dds_ = av_func(tau)
-    for name, peak, limit in (("alpha_dot", np.max(np.abs(ds_)) / duration, alpha_dot_max),
-                              ("alpha_ddot", np.max(np.abs(dds_)) / duration**2, alpha_ddot_max)):
-        if limit is not None and peak > limit:
-            raise ValueError(f"lane change: peak |{name}_v| {peak:.3g} exceeds {name}_max = {limit} "
-                             f"({n} change(s) of {lane_width} m over {distance} m in {duration} s)")
     return ExcitationStep(
         "lane_change",
         2,

@@ -168,8 +168,9 @@ class DataSheet:
         for key in ("l", "b", "r"):
             if not getattr(g, key) > 0:
                 fail("geometry", key, "must be > 0", getattr(g, key))
-        if not 0 <= g.a < g.b / 2:
-            fail("geometry", "a", "must be in [0, b/2)", g.a)
+        if not 0 < g.a < g.b / 2:      # the wheels' forces steer the passive units through a
+            fail("geometry", "a", "must be in (0, b/2): the wheels steer their passive units through the "
+                 "offset a, with no lever at a = 0", g.a)
         if not 0 < g.steering_limit <= math.pi / 2 + 1e-9:
             fail("geometry", "steering_limit", "must be in (0, pi/2]", g.steering_limit)
         for key in ("i_G", "rated_torque", "cycle_time"):

@@ -50,6 +50,7 @@ def _write(tmp_path, text):
     ("r = 0.10 ", "# r = 0.10 ", r"\[geometry\] is missing key 'r'"),
     ("cycle_time = 0.002", "cycle_time = \"2 ms\"", r"\[drive\] key 'cycle_time' must be a number"),
     ("a = 0.08 ", "a = 0.5 ", r"\[geometry\] key 'a' must be in"),
+    ("a = 0.08 ", "a = 0.0 ", r"\[geometry\] key 'a' must be in \(0, b/2\): the wheels steer .* no lever"),
     ("encoder_increments = 65536", "encoder_increments = 65536.5", r"\[drive\] key 'encoder_increments'"),
     ("d_cw = 4.0", "d_cw = -1.0", r"\[nominal\] key 'd_cw' must be >= 0"),
     ("m_ch = 800.0", "m_ch = 800.0\nm_total = 1.0", r"\[nominal\] has unknown keys \['m_total'\]"),

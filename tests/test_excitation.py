@@ -117,6 +117,41 @@ def test_lane_change():
         ex.lane_change(l=L, duration=3.0, distance=1.0, lane_width=5.0)
 
 
+def test_a_lane_change_a_longer_vehicle_cannot_steer_is_narrowed_to_its_steering_limits():
+    """The quick campaign's double lane change (0.1 m over 3 m in 8 s) steers at up to 1.16 rad/s on the
+    prototype (l = 1.2 m) and would need 1.89 rad/s on a vehicle of l = 2 m, where the campaign allows
+    1.5 (and 6 rad/s²): narrowed, it reaches the tighter of the two limits and no further (up to the
+    peaks' sampling, 10⁻⁴), on a narrower lane that still returns to its own;
+    where the limits do not bind it is the lane change as asked. Beyond |α_v| ≤ 0.6 rad (l = 4 m) it is
+    the widest lane that angle reaches."""
+    limits = dict(alpha_v_max=0.6, alpha_dot_max=1.5, alpha_ddot_max=6.0)
+    ask = dict(duration=8.0, distance=3.0, lane_width=0.1, changes=2, **limits)
+    t = np.linspace(0.0, 8.0, 8001)
+
+    def drive(step, l):
+        d = step.evaluate(t)
+        av, avd, avdd = d["alpha_v"]
+        _, y_w, gamma = ex.mode2_path(t, d["x_ch"][1], av, l)
+        return np.abs(av).max(), np.abs(avd).max(), np.abs(avdd).max(), np.abs(y_w).max(), y_w[-1], gamma[-1]
+
+    with pytest.raises(ValueError, match="alpha_dot_v"):
+        ex.lane_change(l=2.0, **ask)
+    prototype = ex.lane_change(l=1.2, **ask)
+    for key in ("alpha_v", "x_ch"):
+        np.testing.assert_array_equal(ex.lane_change(l=1.2, narrow_to_limits=True, **ask).evaluate(t)[key],
+                                      prototype.evaluate(t)[key])
+    assert drive(prototype, 1.2)[3] == pytest.approx(0.1, abs=1e-4)
+    peak_a, peak_ad, peak_add, width, end, heading = drive(ex.lane_change(l=2.0, narrow_to_limits=True, **ask),
+                                                           2.0)
+    assert max(peak_ad / 1.5, peak_add / 6.0) == pytest.approx(1.0, abs=2e-3)
+    assert peak_ad <= 1.5 * (1 + 1e-4) and peak_add <= 6.0 * (1 + 1e-4) and 0.05 < width < 0.1
+    assert abs(end) < 1e-6 and abs(heading) < 1e-9
+    peak_a, peak_ad, peak_add, width, end, heading = drive(ex.lane_change(l=4.0, narrow_to_limits=True, **ask),
+                                                           4.0)
+    assert peak_a <= 0.6 + 1e-9 and peak_ad <= 1.5 * (1 + 1e-4) and peak_add <= 6.0 * (1 + 1e-4)
+    assert 0 < width < 0.1
+
+
 def test_a_double_lane_change_returns_to_its_lane_and_steers_above_stiction():
     """Two changes along the way: out by the lane width and back, heading 0 at the end; over the same way
     the steering moves faster than the single change's and |α̇_v| stays above 0.2 rad/s for a real share."""
