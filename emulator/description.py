@@ -139,9 +139,11 @@ class VehicleDescription:
             raise DescriptionError(
                 f"{self.source}: body: 4·(steering_unit_mass + wheel_mass) = {unit_mass} kg "
                 f"must be below truth.m_ch = {t.m_ch} kg")
-        if 2 * bd.wheel_transverse_inertia < t.B_w:
-            raise DescriptionError(
-                f"{self.source}: body.wheel_transverse_inertia must be >= B_w/2 (triangle inequality)")
+        if not 2 * bd.wheel_transverse_inertia > t.B_w:      # at B_w/2 (a disc of no width) PyBullet
+            raise DescriptionError(                           # takes the tensor for bad and zeroes it
+                f"{self.source}: body.wheel_transverse_inertia must be > B_w/2 (triangle inequality; a wheel "
+                f"of no width is refused by the physics engine), got {bd.wheel_transverse_inertia} with "
+                f"B_w = {t.B_w}")
         from .urdf import body_inertias     # the bodies [body] describes hold the truth: no negative inertia
 
         body_inertias(self)

@@ -11,6 +11,7 @@ far stays on disk.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -111,7 +112,8 @@ class CampaignSettings:
     lane_width: float = 0.25
     lane_changes: int = 2
     # Each arc's length (0: none), the inner steering units' angle (rad; 0.32 rad inside the stops at
-    # π/2) and the path acceleration bound (m/s²); their yaw keeps the rotation's limits. The tighter the
+    # π/2, and no closer to tighter stops: arc_inner_angle) and the path acceleration bound (m/s²); their
+    # yaw keeps the rotation's limits. The tighter the
     # turn, the more the steering units' yaw inertia differs from mode 4's per newton of drive
     # (docs/diagnosis.md, Where: the arcs).
     arc_duration: float = 10.0
@@ -191,18 +193,35 @@ def recorded_settings(recorded: dict) -> CampaignSettings:
     return CampaignSettings(**{**RECORDED_BEFORE, **recorded})
 
 
+#: rad: how far inside the steering stops the arcs' inner units stand at most (the prototype's 1.25 rad
+#: inside its stops at π/2); a vehicle with tighter stops drives wider arcs.
+ARC_STOP_CLEARANCE = math.pi / 2 - 1.25
+
+
+def arc_inner_angle(settings: CampaignSettings, geometry) -> float:
+    """The arcs' inner steering angle (rad): ``settings.arc_inner_alpha``, or :data:`ARC_STOP_CLEARANCE`
+    inside the steering stops where those are tighter."""
+    return min(settings.arc_inner_alpha, geometry.steering_limit - ARC_STOP_CLEARANCE)
+
+
 def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     """The four identification steps, the lane change and (``arc_duration`` > 0) the two arcs, designed
     from ``settings``.
 
     Raises:
-        ValueError: a step's limits cannot be met, or the arcs' inner units would stand within
-            :data:`STOP_MARGIN` of the steering stops.
+        ValueError: a step's limits cannot be met, the rotation's steering angles lie within
+            :data:`STOP_MARGIN` of the steering stops, or the stops leave the arcs no room
+            (:func:`arc_inner_angle`).
     """
     g, s = sheet.geometry, settings
-    if s.arc_duration > 0 and not s.arc_inner_alpha < g.steering_limit - STOP_MARGIN:
-        raise ValueError(f"arc_inner_alpha = {s.arc_inner_alpha} rad must stay below the steering stops "
-                         f"({g.steering_limit:.4g} rad) by more than {STOP_MARGIN} rad")
+    alpha4 = math.atan2(g.l, g.b)                    # the rotation's (mode 4) steering angles, ±
+    if not alpha4 < g.steering_limit - STOP_MARGIN:
+        raise ValueError(f"the rotation (mode 4) holds the steering units at ±{alpha4:.4g} rad (atan(l/b)), "
+                         f"within {STOP_MARGIN} rad of the steering stops ({g.steering_limit:.4g} rad)")
+    arc_inner_alpha = arc_inner_angle(s, g)
+    if s.arc_duration > 0 and not arc_inner_alpha > 0:
+        raise ValueError(f"the arcs' inner units have no room inside the steering stops "
+                         f"({g.steering_limit:.4g} rad, less than {ARC_STOP_CLEARANCE:.3g} rad)")
     common = dict(n_harmonics=s.n_harmonics)
 
     def designed(coordinate: str, duration: float, period: float, cond_cap: float | None = None) -> dict:
@@ -247,7 +266,7 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
     ]
     if s.arc_duration > 0:
         steps += [excitation.arc_excitation(
-            l=g.l, b=g.b, side=side, inner_alpha=s.arc_inner_alpha, duration=s.arc_duration,
+            l=g.l, b=g.b, side=side, inner_alpha=arc_inner_alpha, duration=s.arc_duration,
             gamma_max=s.gamma_max,
             gamma_dot_max=s.gamma_dot_max, gamma_ddot_max=s.gamma_ddot_max, x_ddot_max=s.arc_x_ddot_max,
             periods=_periods(s.arc_duration, s.chassis_period), seed=s.seed + i, **common)

@@ -20,7 +20,7 @@ What the twin is made of:
 * ``[body]``'s contact (tyre friction, contact stiffness and damping, chassis height) and ``[noise]``: the
   built-in prototype's, since neither a data sheet nor an identification gives them; its masses the ideal
   vehicle's, and the wheels' transverse inertia the prototype's where the identified steering inertias
-  hold it (:func:`_wheel_transverse_inertia`: a smaller vehicle's is less).
+  and B_w allow it (:func:`_wheel_transverse_inertia`: a smaller vehicle's is less, a larger one's more).
 
 The twin's *reference run* (:func:`twin_reference`) draws its torque ripple and sensor noise from a
 stream of its own (:func:`reference_seed`), not from the campaign's seed. A real vehicle's noise is never
@@ -98,15 +98,20 @@ def twin_description(result: IdentificationResult, sheet: DataSheet, source: str
 #: The share of a steering unit's inertia (C_l/2, C_r/2) the twin's wheel may take about the steering axis;
 #: the fork keeps the rest. The prototype's own forks keep 28 % of theirs.
 WHEEL_SHARE_OF_UNIT = 0.75
+#: The twin wheels' least inertia about a diameter, per B_w: a wheel of no width has 1/2, which the physics
+#: engine refuses (a degenerate tensor); one as wide as its radius 2/3; the prototype's 0.58.
+WHEEL_TRANSVERSE_PER_B_W = 0.55
 
 
 def _wheel_transverse_inertia(truth: Truth, sheet: DataSheet, prototype: Body) -> float:
     """The twin wheels' inertia about a diameter (kg m²): the prototype's, as long as the identified
     steering inertias leave the forks a quarter of each unit's (:data:`WHEEL_SHARE_OF_UNIT`), else that
-    share of the smaller unit; never below B_w/2, since a wheel's inertia about its axle is at most twice
-    that about a diameter (a smaller vehicle's wheels are lighter in both)."""
+    share of the smaller unit; never below :data:`WHEEL_TRANSVERSE_PER_B_W` · B_w, since a wheel's inertia
+    about its axle is less than twice that about a diameter (a smaller vehicle's wheels are lighter in
+    both, a larger one's heavier)."""
     unit = min(truth.C_l, truth.C_r) / 2 - IDEAL_WHEEL_MASS * sheet.geometry.a ** 2
-    return max(truth.B_w / 2, min(prototype.wheel_transverse_inertia, WHEEL_SHARE_OF_UNIT * unit))
+    return max(WHEEL_TRANSVERSE_PER_B_W * truth.B_w,
+               min(prototype.wheel_transverse_inertia, WHEEL_SHARE_OF_UNIT * unit))
 
 
 #: How far an identified parameter may lie from the data sheet's nominal value, as a factor, before the

@@ -203,14 +203,30 @@ def test_an_arc_holds_the_mode_2_configuration_with_its_inner_units_at_the_given
 
 
 def test_the_campaign_plans_its_arcs_inside_the_stops_or_not_at_all():
+    """The prototype's arcs put the inner units at 1.25 rad, 0.32 rad inside its stops at π/2; a vehicle
+    whose stops are at ±1.2 rad drives its arcs 0.32 rad inside those, and one whose rotation (mode 4)
+    would need its units at the stops has no campaign."""
+    from dataclasses import replace
+
     from qomni.datasheet import DataSheet
-    from qomni.ident.campaign import ARC_STEPS, CampaignSettings, plan
+    from qomni.ident.campaign import ARC_STEPS, ARC_STOP_CLEARANCE, CampaignSettings, arc_inner_angle, plan
 
     sheet = DataSheet.load()
     assert [s.name for s in plan(sheet, CampaignSettings())][-2:] == list(ARC_STEPS)
     assert not set(ARC_STEPS) & {s.name for s in plan(sheet, CampaignSettings(arc_duration=0.0))}
-    with pytest.raises(ValueError, match="arc_inner_alpha"):
-        plan(sheet, CampaignSettings(arc_inner_alpha=sheet.geometry.steering_limit - 0.01))
+    assert arc_inner_angle(CampaignSettings(), sheet.geometry) == 1.25
+    tight = replace(sheet, geometry=replace(sheet.geometry, steering_limit=1.2))
+    assert arc_inner_angle(CampaignSettings(), tight.geometry) == pytest.approx(1.2 - ARC_STOP_CLEARANCE)
+    for settings in (CampaignSettings(), CampaignSettings.quick()):
+        steps = {s.name: s for s in plan(tight, settings)}
+        for name in ARC_STEPS:
+            held = steps[name].held
+            assert max(abs(held["alpha_l"]), abs(held["alpha_r"])) == pytest.approx(1.2 - ARC_STOP_CLEARANCE)
+    square = replace(sheet, geometry=replace(sheet.geometry, l=1.0, b=0.5, steering_limit=1.1))
+    with pytest.raises(ValueError, match=r"rotation \(mode 4\) holds the steering units at ±1.107 rad"):
+        plan(square, CampaignSettings())
+    with pytest.raises(ValueError, match="no room"):
+        plan(replace(sheet, geometry=replace(sheet.geometry, l=0.2, b=1.0, steering_limit=0.3)), CampaignSettings())
 
 
 def test_occupied_rectangle():

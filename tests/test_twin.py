@@ -41,7 +41,7 @@ def test_the_twin_runs_as_the_ideal_vehicle_with_the_identified_mass(tmp_path):
 
 def test_a_smaller_vehicles_twin_gives_its_forks_a_share_of_its_steering_inertia():
     """Identified steering inertias a third of the prototype's (C_r/2 = 0.07 kg m², the prototype's wheel
-    alone): the twin's wheels take 3/4 of the smaller unit's inertia, no less than B_w/2, so that the twin
+    alone): the twin's wheels take 3/4 of the smaller unit's inertia, no less than 0.55 B_w, so that the twin
     is a vehicle; the prototype's twin keeps the prototype's wheel. Inertias that cannot hold a wheel of
     the identified B_w are no twin."""
     from qomni.emulator.effects.base import IDEAL_WHEEL_MASS, ideal_plan
@@ -60,7 +60,23 @@ def test_a_smaller_vehicles_twin_gives_its_forks_a_share_of_its_steering_inertia
     with Emulator(desc, effects=EffectSet.ideal(), seed=1) as emu:
         emu.step(0.01)
     with pytest.raises(TwinError, match="no rigid-body vehicle.*too small"):
-        twin_description(replace(small, B_w=0.15), sheet)          # B_w/2 beyond what a unit holds
+        twin_description(replace(small, B_w=0.15), sheet)          # 0.55 B_w beyond what a unit holds
+
+
+def test_a_larger_vehicles_twin_has_wheels_the_physics_engine_takes():
+    """B_w = 0.5 kg m² and steering inertias of 1.5 kg m² (a larger vehicle's wheels and units): the
+    prototype's 0.07 kg m² about a diameter would break the triangle inequality and B_w/2 is a disc of no
+    width, whose tensor PyBullet zeroes; the twin's wheels have 0.55 B_w and keep their inertia in the
+    engine."""
+    result = identification()
+    larger = replace(result, values={**result.values, "C_l": 1.5, "C_r": 1.5}, B_w=0.5)
+    desc = twin_description(larger, DataSheet.load())
+    assert desc.body.wheel_transverse_inertia == pytest.approx(0.275)
+    with Emulator(desc, effects=EffectSet.ideal(), seed=1) as emu:
+        pb = emu._pb
+        names = {pb.getJointInfo(emu.body, j)[12].decode(): j for j in range(pb.getNumJoints(emu.body))}
+        inertia = pb.getDynamicsInfo(emu.body, names["wheel_fl"])[2]
+    assert inertia == pytest.approx((0.275, 0.5, 0.275), rel=1e-6)
 
 
 def test_the_reference_runs_noise_is_drawn_apart_from_the_campaigns_seed():
