@@ -9,7 +9,9 @@ Coulomb columns. Filtering commutes with the linear terms of (16) but not with d
 filtered torque contains LP(d_c·sign v), a ramp ≈ 1/ω_g wide at every reversal, whereas tanh(LP(v)/ε)
 stays a step. The Coulomb columns are therefore built from velocities differentiated at
 ``COULOMB_VELOCITY_CUTOFF`` and then low-passed at ω_g like the torque ("parallel filtering" of the
-non-linear columns); without this the steering d_v/d_c pair is biased by up to 10 %.
+non-linear columns); without this the steering d_v/d_c pair is biased by up to 10 %. A steering sensor
+coarser than 14 bits differentiates into steps at that cutoff, so the steering rates take a lower one
+(:func:`coulomb_steering_cutoff`).
 """
 from __future__ import annotations
 
@@ -77,12 +79,21 @@ def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filteri
     qd = np.hstack([velocity, alpha_d, beta_d])
     qdd = np.hstack([acceleration, alpha_dd, beta_dd])
     fast = COULOMB_VELOCITY_CUTOFF
-    alpha_f, alpha_df, _ = filtering.zero_phase_derivatives(sig.alpha, ts, fast)
+    alpha_f, alpha_df, _ = filtering.zero_phase_derivatives(sig.alpha, ts, coulomb_steering_cutoff(d))
     beta_df = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, ts, fast)[1]
     qd_coulomb = np.hstack([odometry.chassis_velocity(alpha_f, alpha_df, beta_df, g), alpha_df,
                             beta_df])
     return StepSignals(str(sig.step[0]), int(sig.k[0]), sig.time, q, qd, qdd, torque, qd_coulomb,
                        ts, omega_g)
+
+
+def coulomb_steering_cutoff(drive) -> float:
+    """Cutoff (rad/s) of the steering rates inside the Coulomb columns: :data:`COULOMB_VELOCITY_CUTOFF`, or
+    less for a coarse steering sensor. The derivative of an angle read in steps of q (``drive.steering_lsb``)
+    and low-passed at ω resolves rates of about q·ω (a step per filter time constant); the Coulomb column's
+    sign must be resolved at the stiction threshold below which the fit drops the rows, so ω ≤ threshold/q
+    (14 bits: 522 rad/s, which does not bind; 12 bits: 130; 10 bits: 33)."""
+    return min(COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD["alpha_l"] / drive.steering_lsb)
 
 
 def applied_torque_at_samples(motor_torque: np.ndarray) -> np.ndarray:

@@ -211,3 +211,37 @@ def test_iv_with_instruments_from_the_simulated_model_agrees_with_wls(recorded, 
         assert abs(iv.values[n] / wls.values[n] - 1) < 0.01
         assert 0 < iv.std[n] < 5 * wls.std[n]
     assert json.loads((run_dir / "identification.json").read_text())["estimator"]["name"] == "iv"
+
+
+STEERING = ("C_l", "d_vl", "d_cl", "C_r", "d_vr", "d_cr")
+
+
+def test_a_coarse_steering_sensor_is_differentiated_at_a_cutoff_it_resolves(recorded, tmp_path, monkeypatch):
+    """The recording's steering angles read again by a 10-bit sensor (steps of 6.1 mrad), the data sheet
+    saying so: differentiated at the Coulomb columns' 400 rad/s, the steering rate moves in steps of
+    2.5 rad/s, the Coulomb columns' sign flips with each and the steering friction comes out far off; at
+    the threshold over the step (33 rad/s, ``coulomb_steering_cutoff``) every steering parameter is within
+    5 % of the truth. The 14-bit sensor keeps 400 rad/s."""
+    import qomni.ident.regressor_rows as rows
+    from qomni.datasheet import DataSheet
+
+    assert rows.coulomb_steering_cutoff(DataSheet.load().drive) == rows.COULOMB_VELOCITY_CUTOFF
+    run_dir = tmp_path / "run"
+    shutil.copytree(recorded[0], run_dir)
+    signals, _, _ = load_run(run_dir)
+    step = 2 * np.pi / 2 ** 10
+    alpha = np.round(np.asarray(signals.alpha) / step) * step
+    _write_columns(run_dir, {"alpha_l [rad]": alpha[:, 0], "alpha_r [rad]": alpha[:, 1]})
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    meta["datasheet"]["drive"]["steering_sensor_bits"] = 10
+    (run_dir / "metadata.json").write_text(json.dumps(meta))
+    truth = recorded[1]
+    err = lambda r: {n: r.values[n] / getattr(truth, n) - 1 for n in STEERING}  # noqa: E731
+    shipped = err(identify_run(run_dir, torque_lag=0.0))
+    assert max(map(abs, shipped.values())) < 0.05, shipped
+    cutoff = json.loads((run_dir / "identification.json").read_text())["coulomb_velocity_cutoff"]
+    assert cutoff["steering"] == pytest.approx(0.2 / step) and cutoff["value"] == rows.COULOMB_VELOCITY_CUTOFF
+    monkeypatch.setattr(rows, "coulomb_steering_cutoff", lambda drive: rows.COULOMB_VELOCITY_CUTOFF)
+    at_400 = err(identify_run(run_dir, torque_lag=0.0))
+    assert max(abs(at_400["d_vl"]), abs(at_400["d_vr"])) > 0.2, at_400
+
