@@ -65,7 +65,8 @@ class Emulator:
         seed: seeds torque ripple and sensor noise; the same seed and commands give bit-identical runs.
         lifted: chassis held fixed above the floor, wheels free (single-axis identification set-up).
         gui: open PyBullet's GUI window instead of DIRECT mode (needs a display).
-        time_step: physics step in s, at most 1 ms; the drives' cycle time must be a multiple of it.
+        time_step: physics step in s, at most 1 ms; the drives' cycle time must be a multiple of it (default:
+            1 ms, or the longest step below it that divides the cycle time).
         initial_alpha: (α_l, α_r) in rad the vehicle was parked with (wheels aligned for a mode).
         effects: the unmodelled effects on top of the ideal vehicle (``EffectSet.ideal()``: none);
             ``None`` is the prototype (``EffectSet.prototype``: heavy steering units with the
@@ -79,12 +80,14 @@ class Emulator:
     """
 
     def __init__(self, description: VehicleDescription | None = None, *, seed: int = 0,
-                 lifted: bool = False, gui: bool = False, time_step: float = 0.001,
+                 lifted: bool = False, gui: bool = False, time_step: float | None = None,
                  initial_alpha: tuple[float, float] = (0.0, 0.0), effects: EffectSet | None = None):
         self.description = description or VehicleDescription.load()
         d = self.description
         self.effects = effects if effects is not None else EffectSet.prototype(d)
         self._effects = [e.fresh() for e in self.effects]  # run-time state is per vehicle
+        if time_step is None:            # 1 ms, or the longest step below it that divides the SYNC period
+            time_step = d.drive.cycle_time / math.ceil(d.drive.cycle_time / 0.001 - 1e-9)
         if not 0 < time_step <= 0.001 + 1e-12:
             raise ValueError(f"time_step must be in (0, 1 ms], got {time_step}")
         cycle_steps = d.drive.cycle_time / time_step

@@ -15,8 +15,8 @@ from . import filtering
 from .campaign import IDENTIFICATION_STEPS, VALIDATION_STEP
 from .result import IdentificationResult
 from .estimation import estimate
-from .regressor_rows import (COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD, correlation_lag,
-                             coulomb_steering_cutoff, identification_blocks, validation_blocks)
+from .regressor_rows import (VELOCITY_THRESHOLD, correlation_lag, coulomb_steering_cutoff,
+                             coulomb_velocity_cutoff, identification_blocks, validation_blocks)
 from .recording import Signals
 from .rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, VALIDATION_JSON,
                      RunDirectoryError, b_w_source, check_identification_vehicle, file_sha256,
@@ -100,7 +100,7 @@ def identify(run_dir: str | Path, *, torque_lag: str | float = 0.0,
     data["parameters"]["B_w"]["source"] = source
     data["filter"] = {"omega_g": filtering.OMEGA_G, "unit": "rad/s", "zero_phase": True}
     data["velocity_threshold"] = VELOCITY_THRESHOLD
-    data["coulomb_velocity_cutoff"] = {"value": COULOMB_VELOCITY_CUTOFF,
+    data["coulomb_velocity_cutoff"] = {"value": coulomb_velocity_cutoff(sheet.drive),
                                        "steering": coulomb_steering_cutoff(sheet.drive), "unit": "rad/s"}
     data["std_method"] = f"Newey-West, Bartlett kernel, {lag} lags (filtered rows are correlated)"
     data["run"] = {"status": meta.get("status", "not recorded"), "steps_used": list(IDENTIFICATION_STEPS),

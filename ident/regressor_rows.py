@@ -78,7 +78,7 @@ def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filteri
     q = np.hstack([np.zeros((n, 3)), alpha, beta])
     qd = np.hstack([velocity, alpha_d, beta_d])
     qdd = np.hstack([acceleration, alpha_dd, beta_dd])
-    fast = COULOMB_VELOCITY_CUTOFF
+    fast = coulomb_velocity_cutoff(d)
     alpha_f, alpha_df, _ = filtering.zero_phase_derivatives(sig.alpha, ts, coulomb_steering_cutoff(d))
     beta_df = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, ts, fast)[1]
     qd_coulomb = np.hstack([odometry.chassis_velocity(alpha_f, alpha_df, beta_df, g), alpha_df,
@@ -87,13 +87,24 @@ def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filteri
                        ts, omega_g)
 
 
+#: The Coulomb columns' cutoff stays below this share of the Nyquist frequency π/T_s: a sampled signal
+#: holds nothing faster, and a Butterworth design needs its cutoff below it.
+NYQUIST_SHARE = 0.8
+
+
+def coulomb_velocity_cutoff(drive) -> float:
+    """Cutoff (rad/s) of the velocities inside the Coulomb columns: :data:`COULOMB_VELOCITY_CUTOFF`, or
+    :data:`NYQUIST_SHARE` of the Nyquist frequency at a SYNC period longer than 6.3 ms."""
+    return min(COULOMB_VELOCITY_CUTOFF, NYQUIST_SHARE * np.pi / drive.cycle_time)
+
+
 def coulomb_steering_cutoff(drive) -> float:
-    """Cutoff (rad/s) of the steering rates inside the Coulomb columns: :data:`COULOMB_VELOCITY_CUTOFF`, or
+    """Cutoff (rad/s) of the steering rates inside the Coulomb columns: :func:`coulomb_velocity_cutoff`, or
     less for a coarse steering sensor. The derivative of an angle read in steps of q (``drive.steering_lsb``)
     and low-passed at ω resolves rates of about q·ω (a step per filter time constant); the Coulomb column's
     sign must be resolved at the stiction threshold below which the fit drops the rows, so ω ≤ threshold/q
     (14 bits: 522 rad/s, which does not bind; 12 bits: 130; 10 bits: 33)."""
-    return min(COULOMB_VELOCITY_CUTOFF, VELOCITY_THRESHOLD["alpha_l"] / drive.steering_lsb)
+    return min(coulomb_velocity_cutoff(drive), VELOCITY_THRESHOLD["alpha_l"] / drive.steering_lsb)
 
 
 def applied_torque_at_samples(motor_torque: np.ndarray) -> np.ndarray:
