@@ -113,9 +113,8 @@ class CampaignSettings:
     lane_changes: int = 2
     # Each arc's length (0: none), the inner steering units' angle (rad; 0.32 rad inside the stops at
     # π/2, and no closer to tighter stops: arc_inner_angle) and the path acceleration bound (m/s²); their
-    # yaw keeps the rotation's limits. The tighter the
-    # turn, the more the steering units' yaw inertia differs from mode 4's per newton of drive
-    # (docs/diagnosis.md, Where: the arcs).
+    # yaw keeps the rotation's limits. The tighter the turn, the more the steering units' yaw inertia
+    # differs from mode 4's per newton of drive (docs/diagnosis.md, Where: the arcs).
     arc_duration: float = 10.0
     arc_inner_alpha: float = 1.25
     arc_x_ddot_max: float = 1.6
