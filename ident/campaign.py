@@ -213,7 +213,7 @@ def plan(sheet: DataSheet, settings: CampaignSettings) -> list[ExcitationStep]:
             (:func:`arc_inner_angle`).
     """
     g, s = sheet.geometry, settings
-    alpha4 = math.atan2(g.l, g.b)                    # the rotation's (mode 4) steering angles, ±
+    alpha4 = float(kinematics.mode_alpha(4, g)[1])   # the rotation's steering angles, ±
     if not alpha4 < g.steering_limit - STOP_MARGIN:
         raise ValueError(f"the rotation (mode 4) holds the steering units at ±{alpha4:.4g} rad (atan(l/b)), "
                          f"within {STOP_MARGIN} rad of the steering stops ({g.steering_limit:.4g} rad)")

@@ -94,15 +94,15 @@ def check_rolling(signals: Signals, sheet: DataSheet, path: str) -> None:
     """Every wheel rolls as the others and the steering say it must (constraints (1) of the paper), in
     the steps where the chassis drives (motion modes 2, 3 and 4).
 
-    Over each :data:`WINDOW` of consecutive rows the excess of :func:`rolling_excess` is summed into the
-    way the wheel rolled beyond its contact point, and compared with the way the contact point
-    travelled times s/(1 − s), s = :data:`MAX_SLIP_RATIO`, plus :data:`SLIP_FLOOR`. Steps in mode 1 (the chassis at rest, the
-    steering turning) are left out: there a contact point travels on a circle of radius a about its
-    steering axis, a few centimetres, and its tyre pivots and scrubs rather than rolls (a vehicle with
-    Stribeck friction in both joints at the realistic range's end skids its wheels 0.03 m a second
-    there, and a lifted wheel spins in every driving step as well). Rows more than half a cycle off the
-    recording's spacing (steps cut out of a run) part the rest into stretches that are judged apart; a
-    stretch shorter than one window is not judged.
+    Over each :data:`WINDOW` of consecutive rows the excess of :func:`rolling_excess` is summed into the way
+    the wheel rolled beyond its contact point, and compared with the way the contact point travelled times
+    s/(1 − s), s = :data:`MAX_SLIP_RATIO`, plus :data:`SLIP_FLOOR`. Steps in mode 1 (the chassis at rest, the
+    steering turning) are left out: there a contact point travels on a circle of radius a about its steering
+    axis, a few centimetres, and its tyre pivots and scrubs rather than rolls (a vehicle with Stribeck
+    friction in both joints at the realistic range's end skids its wheels 0.03 m a second there, and a lifted
+    wheel spins in every driving step as well). Rows more than half a cycle off the recording's spacing (steps
+    cut out of a run) part the rest into stretches that are judged apart; a stretch shorter than one window is
+    not judged.
 
     Raises:
         RecordingError: a wheel exceeded the bound in every window starting over

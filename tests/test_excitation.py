@@ -226,7 +226,8 @@ def test_the_campaign_plans_its_arcs_inside_the_stops_or_not_at_all():
     with pytest.raises(ValueError, match=r"rotation \(mode 4\) holds the steering units at ±1.107 rad"):
         plan(square, CampaignSettings())
     with pytest.raises(ValueError, match="no room"):
-        plan(replace(sheet, geometry=replace(sheet.geometry, l=0.2, b=1.0, steering_limit=0.3)), CampaignSettings())
+        plan(replace(sheet, geometry=replace(sheet.geometry, l=0.2, b=1.0, steering_limit=0.3)),
+             CampaignSettings())
 
 
 def test_occupied_rectangle():
