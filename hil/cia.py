@@ -16,6 +16,8 @@ COMMUNICATION_CYCLE_PERIOD = 0x1006         # µs
 ERROR_REGISTER = 0x1001
 PRE_DEFINED_ERROR_FIELD = 0x1003
 CONSUMER_HEARTBEAT_TIME = 0x1016
+COMMUNICATION_CYCLE_PERIOD = 0x1006
+SYNC_COUNTER_OVERFLOW = 0x1019       # 0: SYNC without data; 2…240: a 1-byte counter up to it
 PRODUCER_HEARTBEAT_TIME = 0x1017
 
 # --- objects: CiA 402 drive profile ------------------------------------------------------------------
@@ -109,6 +111,7 @@ ABORT_SUBINDEX_MISSING = 0x06090011
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_VALUE_HIGH = 0x06090031
 ABORT_VALUE_LOW = 0x06090032
+ABORT_DEVICE_STATE = 0x08000022      # not in the present device state
 ABORT_NO_DATA = 0x08000024
 
 # --- EMCY error codes (CiA 301 §7.2.7.1, CiA 402) and error register bits (0x1001) -------------------

@@ -1,6 +1,7 @@
 """qomni.hil.master.client.VehicleClient against qomni.hil.device.server.VehicleServer with a fake plant, in-process (virtual bus)."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import time
@@ -232,3 +233,77 @@ def test_new_master_takes_over_after_a_crashed_one(spec):
             np.testing.assert_allclose(m.motor_torque, 0.25)
             assert m.time == 0.0
         assert all(d.state is PowerState.READY_TO_SWITCH_ON for d in server.drives)
+
+
+def _with_counter(text: str, overflow: int | None) -> str:
+    """An EDS whose 0x1019 default is ``overflow`` (None: the object left out)."""
+    start = text.index("[1019]")
+    end = text.index("[", start + 1)
+    if overflow is None:
+        return text[:start] + text[end:]         # canopen reads every object section, not the lists
+    return text[:start] + text[start:end].replace("DefaultValue=240", f"DefaultValue={overflow}") + text[end:]
+
+
+def test_the_sync_carries_the_counter_0x1019_sets_and_a_log_counts_lost_cycles_across_its_wrap(spec, tmp_path):
+    """The client writes the files' 0x1019 to every node (0x1006 cleared first: CiA 301 lets 0x1019 change
+    only while 0x1006 is 0) and counts its SYNCs 1…0x1019; a lock-step log that lost whole cycles across
+    the counter's wrap is decoded with every later row at its time."""
+    from qomni.hil.layout import DRIVE_EDS, ENCODER_EDS
+    from qomni.hil.master.decode import DecodeReport, decode_log
+
+    drive, encoder = tmp_path / "drive.eds", tmp_path / "encoder.eds"
+    drive.write_text(_with_counter(DRIVE_EDS.read_text(), 8))
+    encoder.write_text(_with_counter(ENCODER_EDS.read_text(), 8))
+    log = tmp_path / "bus.log"
+    with VehicleServer(FakePlant(), spec) as server, \
+            make_client(spec, drive_eds=drive, encoder_eds=encoder, record=log) as client:
+        assert client.sync_counter_overflow == 8
+        assert all(node.values[(0x1019, 0)] == 8 and node.values[(0x1006, 0)] == T_S * 1e6
+                   for node in server.nodes)
+        intact = [client.exchange(np.full(4, 0.01 * k)) for k in range(30)]
+    lines = log.read_text().splitlines()
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    assert [int(lines[i].split()[2].split("#")[1], 16) for i in syncs] == [k % 8 + 1 for k in range(30)]
+    lossy = tmp_path / "lossy.log"
+    lossy.write_text("\n".join(lines[:syncs[6]] + lines[syncs[9]:syncs[20]] + lines[syncs[27]:]) + "\n")
+    report = DecodeReport()
+    cycles = list(decode_log(lossy, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
+                             report=report))
+    assert report.sync_counter == 8 and report.lost_cycles == 10
+    kept = intact[:6] + intact[9:20] + intact[27:]
+    assert [c.measurement.time for c in cycles] == pytest.approx([m.time for m in kept])
+    for got, want in zip(cycles, kept):
+        np.testing.assert_array_equal(got.measurement.motor_position, want.motor_position)
+
+
+def test_a_node_without_0x1019_makes_the_sync_carry_no_counter(spec, tmp_path):
+    """One node whose files have no 0x1019: the SYNC has one length for every consumer, so the client
+    writes 0 to the others' 0x1019 and sends its SYNC without data."""
+    from qomni.hil.layout import ENCODER_EDS
+
+    encoder = tmp_path / "encoder.eds"
+    encoder.write_text(_with_counter(ENCODER_EDS.read_text(), None))
+    sent = []
+    with VehicleServer(FakePlant(), spec) as server, make_client(spec, encoder_eds=encoder) as client, \
+            can.Bus(interface="virtual", channel=spec.split(":", 1)[1]) as spy:
+        assert client.sync_counter_overflow == 0
+        assert all(drive.values[(0x1019, 0)] == 0 for drive in server.drives)    # the encoders have none here
+        client.exchange(np.zeros(4))
+        while (msg := spy.recv(0)) is not None:            # the virtual bus queues every frame at once
+            sent.append(msg)
+    assert [bytes(m.data) for m in sent if m.arbitration_id == 0x80] == [b""]
+
+
+def test_files_that_give_the_nodes_different_counters_are_refused(spec, tmp_path):
+    from qomni.hil.layout import DRIVE_EDS
+
+    drive = tmp_path / "drive.eds"
+    drive.write_text(_with_counter(DRIVE_EDS.read_text(), 16))
+    with VehicleServer(FakePlant(), spec), pytest.raises(CommunicationError, match=r"0x1019: .*\[16, 240\]"):
+        make_client(spec, drive_eds=drive).connect()
+
+
+def test_a_client_that_reads_the_devices_configuration_takes_their_counter(spec):
+    with VehicleServer(FakePlant(), spec) as server, make_client(spec, configure_pdos=False) as client:
+        assert client.sync_counter_overflow == 240 == server.drives[0].values[(0x1019, 0)]
+        client.exchange(np.zeros(4))

@@ -53,7 +53,9 @@ def decoded_by_id(frames, db):
 def test_structure_of_generated_dbc(recording):
     db = cantools.database.load_file(recording[3])           # through the DBC text
     names = {m.name: m for m in db.messages}
-    assert names["SYNC"].frame_id == 0x80 and names["SYNC"].length == 0
+    assert names["SYNC"].frame_id == 0x80 and names["SYNC"].length == 1          # 0x1019 = 240: a counter
+    counter = names["SYNC"].get_signal_by_name("sync_counter")
+    assert (counter.start, counter.length, counter.minimum, counter.maximum) == (0, 8, 1, 240)
     assert names["NMT"].frame_id == 0x000
     rpdo = db.get_message_by_frame_id(0x201)
     assert rpdo.name == "fl_RPDO1" and rpdo.length == 4 and rpdo.senders == ["master"]
@@ -82,7 +84,7 @@ def test_recording_decodes_to_the_measurements(recording):
     db = cantools.database.load_file(dbc)
     d = decoded_by_id(frames, db)
     n = len(measurements)
-    assert len(d[0x80]) == n
+    assert d[0x80] == [{"sync_counter": k % 240 + 1} for k in range(n)]
     assert {"nmt_command": 130, "nmt_node_id": 1} in d[0x000]               # reset communication
     assert {"nmt_command": 1, "nmt_node_id": 6} in d[0x000]                 # start
     assert {"fl_nmt_state": 0} in d[0x701]                                  # boot-up
@@ -200,3 +202,14 @@ def test_errors(tmp_path):
     (tmp_path / "clash.eds").write_text(clash)
     with pytest.raises(ValueError, match="COB-ID 0x181"):
         build_database(encoder_eds=tmp_path / "clash.eds")
+
+
+def test_the_sync_has_a_counter_only_where_every_node_sets_the_same_0x1019(tmp_path):
+    """CiA 301 §7.2.5: 0x1019 = 0 is a SYNC without data; nodes that disagree get no counter signal."""
+    text = DRIVE_EDS.read_text()
+    at = text.index("[1019]")
+    none = tmp_path / "none.eds"
+    none.write_text(text[:at] + text[at:].replace("DefaultValue=240", "DefaultValue=0", 1))
+    for drive, encoder in ((none, none), (DRIVE_EDS, none)):
+        sync = build_database(drive_eds=drive, encoder_eds=encoder).get_message_by_name("SYNC")
+        assert sync.length == 0 and sync.signals == []

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import time
 import uuid
 from dataclasses import asdict, replace
@@ -183,13 +184,39 @@ def _real_time(lines: list[str]) -> list[str]:
     return out
 
 
-def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, tmp_path):
-    """A logger that lost a SYNC with every TPDO of its cycle: a real-time log's SYNC clock shows the gap,
-    so the later cycles keep their time and the missing rows are there to be refused; a lock-step log's
-    stamps are not real time and its cycles are counted as logged."""
+def _without_counter(lines: list[str]) -> list[str]:
+    """The candump -L lines with the SYNC's counter taken out: a master that sends none."""
+    return [re.sub(r" 080#[0-9A-F]{2}\b", " 080#", line) for line in lines]
+
+
+def test_a_lock_step_log_that_lost_whole_cycles_counts_them_by_the_sync_counter(session, tmp_path):
+    """A logger that lost SYNCs with every TPDO of their cycles: a lock-step log's stamps are wall time,
+    but the SYNC's counter (CiA 301, 0x1019) says how many are missing, so the later cycles keep their
+    time and the missing rows are there to be refused. Without a counter the same log is counted as logged."""
     _, logs, _, _ = session
     decode = partial(_decode_lines, tmp_path / "edited.log")
-    lines = _real_time(logs[1].read_text().splitlines())
+    lines = logs[1].read_text().splitlines()
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    assert [lines[i].split()[2] for i in syncs[:3]] == ["080#01", "080#02", "080#03"]
+    intact, report = decode(lines)
+    assert not report.real_time_clock and report.sync_counter == N_CYCLES and len(intact) == N_CYCLES
+    cycles, report = decode(lines[:syncs[10]] + lines[syncs[12]:])
+    assert report.lost_cycles == 2 and len(cycles) == N_CYCLES - 2
+    times = [round(c.measurement.time, 9) for c in cycles]
+    assert times == [round(c.measurement.time, 9) for c in intact[:10] + intact[12:]]
+    for got, want in zip(cycles[10:], intact[12:]):
+        np.testing.assert_array_equal(got.measurement.motor_position, want.measurement.motor_position)
+    _, report = decode(_without_counter(lines[:syncs[10]] + lines[syncs[12]:]))
+    assert report.sync_counter == 0 and report.lost_cycles == 0
+
+
+def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, tmp_path):
+    """A logger that lost a SYNC with every TPDO of its cycle, from a master that sends no SYNC counter: a
+    real-time log's SYNC clock shows the gap, so the later cycles keep their time and the missing rows are
+    there to be refused; a lock-step log's stamps are not real time and its cycles are counted as logged."""
+    _, logs, _, _ = session
+    decode = partial(_decode_lines, tmp_path / "edited.log")
+    lines = _real_time(_without_counter(logs[1].read_text().splitlines()))
     intact, report = decode(lines)
     assert report.real_time_clock and report.lost_cycles == 0 and len(intact) == N_CYCLES
     syncs = [i for i, line in enumerate(lines) if " 080#" in line]
@@ -205,7 +232,7 @@ def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, t
     times = {round(c.measurement.time, 9) for c in cycles}
     assert times == {round(c.measurement.time, 9) for c in intact} - {round(c.measurement.time, 9) for c in
                                                                        intact[10:12]}
-    lockstep = logs[1].read_text().splitlines()
+    lockstep = _without_counter(logs[1].read_text().splitlines())
     syncs = [i for i, line in enumerate(lockstep) if " 080#" in line]
     _, report = decode(lockstep[:syncs[10]] + lockstep[syncs[12]:])
     assert not report.real_time_clock and report.lost_cycles == 0

@@ -63,6 +63,28 @@ def test_sdo_identity_and_segmented_upload(master, server):
         drive.sdo[0x6060].raw = 2                                # velocity mode: not supported
 
 
+def test_the_sync_counter_0x1019_changes_only_while_0x1006_is_0(master, server, plant):
+    """CiA 301 §7.5.2.20: 0x1019 takes 0 or 2…240 and is refused with 0x08000022 while the communication
+    cycle period 0x1006 is not 0; a SYNC with the counter steps the plant like one without."""
+    drive = master.drive[2]
+    assert drive.sdo[0x1019].raw == 240 and drive.sdo[0x1006].raw != 0
+    with pytest.raises(canopen.SdoAbortedError) as refused:
+        drive.sdo[0x1019].raw = 16
+    assert refused.value.code == 0x08000022 and drive.sdo[0x1019].raw == 240
+    drive.sdo[0x1019].raw = 240                                  # the value it holds: nothing changes
+    drive.sdo[0x1006].raw = 0
+    with pytest.raises(canopen.SdoAbortedError) as reserved:
+        drive.sdo[0x1019].raw = 1
+    assert reserved.value.code == 0x06090030
+    drive.sdo[0x1019].raw = 16
+    drive.sdo[0x1006].raw = 2000
+    assert drive.sdo[0x1019].raw == 16
+    master.nmt(0x01)
+    master.send(0x80, b"\x07")
+    master.barrier()
+    assert plant.steps == 1
+
+
 # ------------------------------------------------------------------------------ CiA 402
 def test_base_node_402_walks_state_machine(channel, plant):
     """canopen's BaseNode402 (an independent master) drives the drive to OPERATION ENABLED and back."""

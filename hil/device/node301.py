@@ -22,6 +22,9 @@ heartbeat producer and the EMCY producer. This module adds what a real device do
   with the first heartbeat of that node) raises EMCY 0x8130 when a heartbeat is overdue. Each sets the
   communication bit of the error register 0x1001 and calls :meth:`Node301.on_communication_lost`.
   Malformed frames (wrong DLC) are dropped; short RPDOs raise EMCY 0x8210, long SYNCs EMCY 0x8240.
+* SYNC counter (0x1019, CiA 301 §7.2.5): a SYNC of 0 or 1 data byte is taken whatever 0x1019 holds (a
+  stricter device raises EMCY 0x8240 where the length is not the one 0x1019 sets); 0x1019 takes 0 or
+  2…240 (else 0x06090030) and changes only while 0x1006 is 0 (else 0x08000022).
 * EMCY (CiA 301 §7.2.7) carries the error register 0x1001; every error code other than 0x0000 is also
   pushed onto the pre-defined error field 0x1003 (newest at sub-index 1, at most 8; writing 0 to
   sub-index 0 clears it, any other value is refused with 0x06090030).
@@ -41,9 +44,9 @@ from canopen import objectdictionary as od
 from canopen.nmt import NMT_STATES
 from canopen.sdo import SdoAbortedError
 
-from ..cia import (ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_SUBINDEX_MISSING, ABORT_VALUE_HIGH, ABORT_VALUE_LOW,
-                   ABORT_VALUE_RANGE, ABORT_WRITE_ONLY, CONSUMER_HEARTBEAT_TIME, INITIALISING,
-                   PRE_DEFINED_ERROR_FIELD)
+from ..cia import (ABORT_DEVICE_STATE, ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_SUBINDEX_MISSING, ABORT_VALUE_HIGH,
+                   ABORT_VALUE_LOW, ABORT_VALUE_RANGE, ABORT_WRITE_ONLY, COMMUNICATION_CYCLE_PERIOD,
+                   CONSUMER_HEARTBEAT_TIME, INITIALISING, PRE_DEFINED_ERROR_FIELD, SYNC_COUNTER_OVERFLOW)
 from .emcy import EmcyService
 from .nmt import NmtService, NodeNmt
 from .pdo import PdoService, _Pdo
@@ -178,6 +181,11 @@ class Node301(NmtService, PdoService, SupervisionService, EmcyService, canopen.L
             self._validate_pdo_parameter(index, subindex, value)
         elif index == PRE_DEFINED_ERROR_FIELD and subindex == 0 and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == SYNC_COUNTER_OVERFLOW:
+            if value == 1 or value > 240:                # reserved values (CiA 301 §7.5.2.20)
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            if value != self.values.get((index, 0)) and self.values.get((COMMUNICATION_CYCLE_PERIOD, 0)):
+                raise SdoAbortedError(ABORT_DEVICE_STATE)   # only while 0x1006 is 0
         self.validate_write(index, subindex, value)
         self.values[(index, subindex)] = value
         if 0x1400 <= index < 0x1C00:

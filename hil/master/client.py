@@ -7,15 +7,16 @@ the bus spec differs (``"virtual"`` vs ``"socketcan:can0"``).
 Start-up (:meth:`VehicleClient.connect`), CiA 301 §7.2.8 / CiA 402 §6:
 
 1. NMT reset communication of nodes 1…6, wait for their boot-up messages;
-2. configure by SDO (PRE-OPERATIONAL): 0x1006 = T_s; PDO communication and mapping written from the
-   EDS defaults (or read from the devices); drives: read 0x6076 rated torque and 0x6072 max torque,
-   check 0x6502, target torque 0x6071 = 0, 0x6060 = 10 (CST) confirmed by reading 0x6061;
+2. configure by SDO (PRE-OPERATIONAL): 0x1019 (the SYNC's counter), 0x1006 = T_s; PDO communication and
+   mapping written from the EDS defaults (or, like 0x1019, read from the devices); drives: read 0x6076
+   rated torque and 0x6072 max torque, check 0x6502, target torque 0x6071 = 0, 0x6060 = 10 (CST)
+   confirmed by reading 0x6061;
 3. walk every drive's power state machine to OPERATION ENABLED by SDO (fault reset if needed);
 4. NMT start.
 
 Cycle (:meth:`VehicleClient.exchange`): the RPDOs (controlword 0x000F, target torque per mille), then
-SYNC, then wait for every synchronous TPDO of this SYNC. Everything the master sends and receives can
-be recorded to a BLF file.
+SYNC (with its counter where 0x1019 sets one), then wait for every synchronous TPDO of this SYNC.
+Everything the master sends and receives can be recorded to a BLF file.
 
 Supervision while operational: a boot-up message of a node (it lost power or was reset) makes the next
 :meth:`VehicleClient.exchange` raise :class:`CommunicationError` at once; every EMCY (CiA 301 §7.2.7) is
@@ -85,6 +86,8 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
         rated_torque: (4,) N m motor side, from 0x6076 (read at connect).
         max_torque: (4,) N m motor side, from 0x6072.
         cycle: SYNCs sent since connect.
+        sync_counter_overflow: 0x1019 of every node (set at connect): the SYNC carries a counter 1…this
+            value (the counter of SYNC k since NMT start is k mod it + 1), or no data where it is 0.
         missed: {COB-ID: cycles} whose TPDO did not arrive and was held from the cycle before.
     Raises:
         ValueError: non-positive data-sheet numbers; ConciseDcfError (a ValueError): a malformed concise DCF.
@@ -127,6 +130,8 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
         self.rated_torque = np.full(4, np.nan)
         self.max_torque = np.full(4, np.nan)
         self.cycle = 0
+        self.sync_counter_overflow = 0
+        self._sync_data = [b""]
         self._network: RecordingNetwork | None = None
         self._bus: can.BusABC | None = None
         self._recorder: BusRecorder | None = None
@@ -250,7 +255,8 @@ class VehicleClient(ClientConfiguration, ClientSupervision):
         for cob_id, codec, drive, slots in self._rpdo_plan:
             values = [per_mille[drive] if slot is None else slot for slot in slots]
             send(cob_id, codec.pack(values))
-        send(SYNC_COB_ID, b"")
+        sync_data = self._sync_data
+        send(SYNC_COB_ID, sync_data[self.cycle % len(sync_data)])   # counter 1…0x1019, or no data
         t = self.cycle * self.cycle_time
         self.cycle += 1
         if not self._wait_for_tpdos():

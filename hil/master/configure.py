@@ -25,6 +25,8 @@ from .errors import CommunicationError
 logger = logging.getLogger(__name__)
 
 _CST_SUPPORTED = supported_mode_bit(_MODE_CST)
+#: Largest synchronous counter overflow value 0x1019 (CiA 301 §7.5.2.20; 1 and 241…255 are reserved).
+MAX_SYNC_COUNTER = 240
 #: Times an SDO request is repeated when no response comes (a frame lost on the bus), as masters do.
 SDO_RETRIES = 3
 
@@ -107,6 +109,7 @@ class ClientConfiguration:
         for node in self.drives + self.encoders:
             if node.id in self._concise_dcf:
                 dcf.apply(node, self._concise_dcf[node.id])       # CiA 302: the manager's 0x1F22 first
+        self._configure_sync_counter()
         for node in self.drives + self.encoders:
             if 0x1006 in node.object_dictionary:
                 self._write(node, 0x1006, period_us)
@@ -148,6 +151,36 @@ class ClientConfiguration:
         self._per_mille_scale = self._per_mille_per_nm.tolist()
         self._per_mille_limit = self._max_per_mille.tolist()
         self._plan_cycle()
+
+    def _configure_sync_counter(self) -> None:
+        """The SYNC's counter (CiA 301 §7.2.5, object 0x1019): a SYNC consumer expects a 1-byte counter
+        where its 0x1019 is 2…240 and no data where it is 0, so every node gets one value. It is the
+        EDS/DCF's (``configure_pdos``) or the devices' own; a node without 0x1019 makes it 0 for all.
+        The counter lets a log's reader count lost SYNCs exactly (:mod:`qomni.hil.master.decode`). 0x1019
+        may change only while 0x1006 is 0 (CiA 301), so 0x1006 is cleared first where it must change;
+        :meth:`_configure` writes it afterwards.
+
+        Raises: CommunicationError: the nodes hold different counters (read from the devices), the files
+            give one outside 0, 2…240, or an SDO fails."""
+        nodes = self.drives + self.encoders
+        if any(0x1019 not in node.object_dictionary for node in nodes):
+            wanted = {0}
+        elif self._configure_pdos:
+            wanted = {_reset_value(node.object_dictionary[0x1019]) for node in nodes}
+        else:
+            wanted = {self._read(node, 0x1019) for node in nodes}
+        if len(wanted) != 1 or wanted & {1} or max(wanted) > MAX_SYNC_COUNTER:
+            raise CommunicationError(f"synchronous counter overflow value 0x1019: the nodes' files or the "
+                                     f"devices give {sorted(wanted)}; the SYNC takes one counter for every "
+                                     f"node, 0 (none) or 2…{MAX_SYNC_COUNTER}")
+        overflow = wanted.pop()
+        for node in nodes:
+            if 0x1019 in node.object_dictionary and self._read(node, 0x1019) != overflow:
+                if 0x1006 in node.object_dictionary:
+                    self._write(node, 0x1006, 0)
+                self._write(node, 0x1019, overflow)
+        self.sync_counter_overflow = overflow
+        self._sync_data = [bytes((k,)) for k in range(1, overflow + 1)] if overflow else [b""]
 
     def _plan_cycle(self) -> None:
         """Compile the RPDOs to send and the TPDOs to await from the configured PDO maps."""
@@ -194,6 +227,11 @@ class ClientConfiguration:
                         f"node {node.id}: {', '.join(f'0x{k[0]:04X}' for k in sorted(needed))} not in a "
                         f"synchronous TPDO (transmission type 1)")
         self._expected = len(self._tpdo_plan)
+
+
+def _reset_value(variable):
+    """A file's value of an object: the DCF's ParameterValue, else the EDS' DefaultValue."""
+    return variable.value if variable.value is not None else variable.default
 
 
 def _codec(node, pdo, receive: bool) -> PdoCodec:

@@ -22,12 +22,15 @@ A cycle without the TPDO of some node is skipped and counted (:attr:`DecodeRepor
 missing from the log (the logger lost it) shows as a synchronous TPDO (transmission type 0–240, sent at
 most once per SYNC) sent again before the next SYNC: the cycle boundary is restored there and counted
 (:attr:`DecodeReport.sync_restored`), so the later cycles keep their time; the same frame logged twice
-(identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). Where the
-log's SYNC time stamps run on the T_s grid (:func:`_real_time_clock`: a real-time master's log), a SYNC
-that comes n + 1 periods after the one before (within :data:`GRID_TOLERANCE`) says that n cycles are
-missing from the log, SYNC and TPDOs alike: the count skips them (:attr:`DecodeReport.lost_cycles`), so
-later cycles keep their time and the readers of the run refuse the gap, naming the line. A lock-step
-recording's stamps are not real time, and its count is the SYNCs logged. A log cut while it was written
+(identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). Whole cycles
+missing from the log, SYNC and TPDOs alike, are counted (:attr:`DecodeReport.lost_cycles`) and skipped by
+the count, so later cycles keep their time and the readers of the run refuse the gap, naming the line.
+Where the SYNCs carry a counter (CiA 301 §7.2.5, 0x1019 ≥ 2; it runs to the 0x1019 the log's master
+downloaded, else to the largest counter logged), a SYNC whose counter is n past the one due says so,
+whatever the time stamps. Without a counter, where the log's SYNC time stamps run on the T_s grid
+(:func:`_real_time_clock`: a real-time master's log), a SYNC that comes n + 1 periods after the one
+before (within :data:`GRID_TOLERANCE`) says so; a lock-step recording's stamps are not real time, and
+its count is then the SYNCs logged. A log cut while it was written
 (a BLF shorter than its header announces, a text log whose last line has no line end) is decoded up to
 the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
@@ -91,8 +94,9 @@ class DecodedCycle:
 @dataclass
 class DecodeReport:
     """Counts of a decode: frames read, cycles decoded, cycles skipped as incomplete, SYNCs missing from
-    the log and restored, whole cycles missing from a real-time log (and whether its SYNC clock is read as
-    real time), a logger's duplicate frames dropped, rated torque used."""
+    the log and restored, whole cycles missing from the log (and whether its SYNC clock is read as real
+    time, and the value its SYNC counter runs to: 0 where the SYNCs carry none), a logger's duplicate
+    frames dropped, rated torque used."""
 
     frames: int = 0
     cycles: int = 0
@@ -100,6 +104,7 @@ class DecodeReport:
     sync_restored: int = 0
     lost_cycles: int = 0
     real_time_clock: bool = False
+    sync_counter: int = 0
     duplicates: int = 0
     sessions: int = 0
     rated_torque: list = field(default_factory=list)
@@ -245,6 +250,7 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     _check_period(path, logged, period)
     rated = _rated_torques(path, mapping, rated_torque, report, logged)
     report.real_time_clock = _real_time_clock(np.asarray(logged.sync_stamps), period)
+    report.sync_counter = logged.counter_overflow
     reader = _open_log(path, report)
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
@@ -363,6 +369,8 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
     rx: dict[int, bytes] = {}
     seen_at: dict[int, float] = {}
     unwrap = None
+    overflow = report.sync_counter
+    next_counter = None   # the counter the next SYNC carries, None where unknown (before the first)
 
     for msg in itertools.chain(reader, [None]):          # None: the end closes the last cycle
         if msg is not None:
@@ -382,6 +390,13 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
                 continue
             lost_sync = True                             # sent again: the SYNC between the two is not in the log
             report.sync_restored += 1
+        lost = 0
+        if cob == sync_id and msg is not None and len(msg.data) == 1 and overflow:
+            if cycle is not None and next_counter is not None:
+                lost = (msg.data[0] - next_counter) % overflow     # SYNCs with their counters not logged
+            next_counter = msg.data[0] % overflow + 1
+        elif (cob == sync_id or lost_sync) and next_counter is not None:
+            next_counter = next_counter % overflow + 1
         if cob == sync_id or lost_sync:
             if cycle is not None and rx:
                 out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, encoder_increments,
@@ -395,8 +410,9 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             rx = {}
             cmd = pending_cmd.copy()
             if cycle is not None:
-                cycle += 1
-                if report.real_time_clock and msg is not None:
+                cycle += 1 + lost
+                report.lost_cycles += lost
+                if report.real_time_clock and msg is not None and not overflow:
                     if cob == sync_id and boundary is not None:
                         periods = (msg.timestamp - boundary) / period
                         lost = int(round(periods)) - 1
@@ -409,7 +425,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
         elif cob == 0x000 and len(msg.data) == 2 and msg.data[0] == _NMT_START:
             if cycle is None or cycle > 0:
                 report.sessions += 1
-            cycle, unwrap, rx, boundary = 0, None, {}, None
+            cycle, unwrap, rx, boundary, next_counter = 0, None, {}, None, None
         elif cob in mapping.tpdos:
             rx[cob] = bytes(msg.data)
             seen_at[cob] = msg.timestamp
@@ -445,11 +461,20 @@ _SDO_EXPEDITED = struct.Struct("<BHBI")
 @dataclass
 class _LogScan:
     """What the log's expedited SDO frames say: 0x6076 uploaded from each drive (mN m, node id → value),
-    and 0x1006 the master downloaded to each node (µs); and the SYNC frames' time stamps (s)."""
+    0x1006 the master downloaded to each node (µs) and the 0x1019 it downloaded; and the SYNC frames' time
+    stamps (s) and counters."""
 
     rated_mnm: dict[int, int] = field(default_factory=dict)
     cycle_period_us: dict[int, int] = field(default_factory=dict)
     sync_stamps: list[float] = field(default_factory=list)
+    sync_counter_overflow: int = 0      # the last 0x1019 downloaded (0: none in the log)
+    sync_counter_max: int = 0           # the largest SYNC counter logged (0: no SYNC has one)
+
+    @property
+    def counter_overflow(self) -> int:
+        """The value a SYNC counter runs to: the 0x1019 the master wrote, else the largest counter logged
+        (a log shorter than one round of the counter never needs the wrap)."""
+        return max(self.sync_counter_overflow, self.sync_counter_max)
 
 
 def _scan_log(path: Path, sync_id: int = SYNC_COB_ID) -> _LogScan:
@@ -459,6 +484,8 @@ def _scan_log(path: Path, sync_id: int = SYNC_COB_ID) -> _LogScan:
         cob = msg.arbitration_id
         if cob == sync_id and not msg.is_extended_id and not msg.is_remote_frame and not msg.is_error_frame:
             logged.sync_stamps.append(float(msg.timestamp))
+            if len(msg.data) == 1:
+                logged.sync_counter_max = max(logged.sync_counter_max, msg.data[0])
         if msg.is_extended_id or len(msg.data) != 8:
             continue
         command, index, sub, value = _SDO_EXPEDITED.unpack(bytes(msg.data))
@@ -466,6 +493,8 @@ def _scan_log(path: Path, sync_id: int = SYNC_COB_ID) -> _LogScan:
             logged.rated_mnm[cob - 0x580] = value                        # expedited upload response
         elif 0x601 <= cob <= 0x67F and command == 0x23 and index == 0x1006 and sub == 0:
             logged.cycle_period_us.setdefault(cob - 0x600, value)       # expedited download, 4 bytes
+        elif 0x601 <= cob <= 0x67F and command == 0x2F and index == 0x1019 and sub == 0 and value & 0xFF:
+            logged.sync_counter_overflow = value & 0xFF                 # expedited download, 1 byte
     return logged
 
 

@@ -13,7 +13,8 @@ Content, per node (drives 1…4 = fl, rl, fr, rr from ``drive_eds``; encoders 5,
   endian (CANopen byte order), start bit = sum of the preceding entries' lengths (dummy entries leave
   gaps), signed for INTEGERn, IEEE float for REALn. Sender/receiver: the node and ``master``.
   Synchronous PDOs (transmission type 1…240) get the cycle time n · 0x1006.
-* ``SYNC`` (COB-ID from 0x1005, default 0x80, length 0), ``NMT`` (0x000: command, node id),
+* ``SYNC`` (COB-ID from 0x1005, default 0x80; length 1 with the signal ``sync_counter`` where every
+  node's 0x1019 is the same value 2…240, CiA 301 §7.2.5, else length 0), ``NMT`` (0x000: command, node id),
   ``<node>_heartbeat`` (0x700 + id: NMT state) and ``<node>_EMCY`` (COB-ID 0x1014: error code, error
   register, manufacturer field) with value tables for the NMT command and state.
 
@@ -82,6 +83,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
                 zip(ENCODER_NODE_IDS, SIDES, _per_node(encoder_eds, len(ENCODER_NODE_IDS), "encoder_eds"))]
     messages: list[Message] = []
     sync_cob_id = None
+    counters = set()
     for node_id, name, path in devices:
         if not Path(path).is_file():
             raise FileNotFoundError(f"EDS/DCF file {path} does not exist")
@@ -89,11 +91,17 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
         values = reset_values(dictionary)
         if sync_cob_id is None:
             sync_cob_id = values.get((0x1005, 0), SYNC_COB_ID) & 0x7FF
+        counters.add(values.get((0x1019, 0), 0))
         messages += _pdo_messages(dictionary, values, node_id, name, path)
         messages += _service_messages(values, node_id, name)
+    overflow = counters.pop() if len(counters) == 1 else 0     # a node without or with another: none
+    counter = [Signal("sync_counter", 0, 8, is_signed=False, minimum=1, maximum=overflow,
+                      comment="1 after NMT start, +1 per SYNC, back to 1 after 0x1019",
+                      receivers=[n for _, n, _ in devices])] if overflow else []
     messages.insert(0, Message(
-        frame_id=sync_cob_id, name="SYNC", length=0, signals=[], senders=[MASTER],
-        comment="CiA 301 SYNC (no counter); every node samples and sends its synchronous TPDOs"))
+        frame_id=sync_cob_id, name="SYNC", length=len(counter), signals=counter, senders=[MASTER],
+        comment=f"CiA 301 SYNC ({f'counter up to 0x1019 = {overflow}' if overflow else 'no counter'}); every "
+                "node samples and sends its synchronous TPDOs"))
     messages.insert(0, Message(
         frame_id=0x000, name="NMT", length=2, senders=[MASTER], comment="CiA 301 NMT node control",
         signals=[

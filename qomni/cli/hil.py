@@ -272,6 +272,7 @@ def decode(
         "log": str(log), "frames": report.frames, "cycles": report.cycles, "rows": rows,
         "incomplete_cycles": report.incomplete, "sync_restored": report.sync_restored,
         "lost_cycles": report.lost_cycles, "real_time_clock": report.real_time_clock,
+        "sync_counter_overflow": report.sync_counter,
         "cycles_outside_segments": outside,
         "duplicate_frames": report.duplicates, "sessions": report.sessions, "warnings": report.warnings,
         "rated_torque": {"value": report.rated_torque, "unit": "N m", "source": report.rated_torque_source},
@@ -282,7 +283,8 @@ def decode(
                   + (f"; {report.sync_restored} SYNC missing from the log restored where a synchronous TPDO "
                      "came again" if report.sync_restored else "")
                   + (f"; {report.lost_cycles} whole cycle(s) missing from the log (SYNC and TPDOs) where its SYNC "
-                     "clock skips them: the later rows keep their time" if report.lost_cycles else "")
+                     f"{'counter' if report.sync_counter else 'clock'} skips them: the later rows keep their time"
+                     if report.lost_cycles else "")
                   + (f"; {report.duplicates} frame(s) logged twice dropped" if report.duplicates else "")
                   + (f"; {outside} cycle(s) outside the segments of {metadata} left out (the log's session "
                      "before or after the campaign; a log of another campaign than the metadata's is refused "
