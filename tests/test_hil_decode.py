@@ -206,8 +206,10 @@ def test_a_lock_step_log_that_lost_whole_cycles_counts_them_by_the_sync_counter(
     assert times == [round(c.measurement.time, 9) for c in intact[:10] + intact[12:]]
     for got, want in zip(cycles[10:], intact[12:]):
         np.testing.assert_array_equal(got.measurement.motor_position, want.measurement.motor_position)
+    assert report.warnings == []
     _, report = decode(_without_counter(lines[:syncs[10]] + lines[syncs[12]:]))
     assert report.sync_counter == 0 and report.lost_cycles == 0
+    assert len(report.warnings) == 1 and "whole cycles the logger lost" in report.warnings[0]
 
 
 def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, tmp_path):
@@ -218,7 +220,7 @@ def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, t
     decode = partial(_decode_lines, tmp_path / "edited.log")
     lines = _real_time(_without_counter(logs[1].read_text().splitlines()))
     intact, report = decode(lines)
-    assert report.real_time_clock and report.lost_cycles == 0 and len(intact) == N_CYCLES
+    assert report.real_time_clock and report.lost_cycles == 0 and len(intact) == N_CYCLES and not report.warnings
     syncs = [i for i, line in enumerate(lines) if " 080#" in line]
     stamp, rest = lines[syncs[20]].split(" ", 1)                   # a SYNC 0.6 T_s late: jitter, not a loss
     late = lines[:syncs[20]] + [f"({float(stamp[1:-1]) + 0.6 * T_S:.6f}) {rest}"] + lines[syncs[20] + 1:]

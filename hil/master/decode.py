@@ -30,7 +30,7 @@ downloaded, else to the largest counter logged), a SYNC whose counter is n past 
 whatever the time stamps. Without a counter, where the log's SYNC time stamps run on the T_s grid
 (:func:`_real_time_clock`: a real-time master's log), a SYNC that comes n + 1 periods after the one
 before (within :data:`GRID_TOLERANCE`) says so; a lock-step recording's stamps are not real time, and
-its count is then the SYNCs logged. A log cut while it was written
+its count is then the SYNCs logged, with a warning. A log cut while it was written
 (a BLF shorter than its header announces, a text log whose last line has no line end) is decoded up to
 the cut, with a warning in :attr:`DecodeReport.warnings`.
 """
@@ -251,6 +251,10 @@ def decode_log(path: str | Path, *, encoder_increments: int, steering_sensor_bit
     rated = _rated_torques(path, mapping, rated_torque, report, logged)
     report.real_time_clock = _real_time_clock(np.asarray(logged.sync_stamps), period)
     report.sync_counter = logged.counter_overflow
+    if logged.sync_stamps and not report.real_time_clock and not report.sync_counter:
+        report.warnings.append(f"{path}: its SYNCs carry no counter (0x1019) and their time stamps do not run on "
+                               f"the {period * 1e3:g} ms grid (a lock-step log): whole cycles the logger lost, "
+                               "SYNC and TPDOs, cannot be counted, and every row after them would be early")
     reader = _open_log(path, report)
     return _cycles(_frames(reader, path), mapping, period, rated, report, encoder_increments,
                    steering_sensor_bits)
