@@ -1,6 +1,7 @@
 """Bus load of the vehicle's cyclic CANopen traffic, from the active PDO mapping of the EDS/DCF files.
 
-Per SYNC cycle T_s (0x1006): one SYNC (DLC 0), every valid RPDO once (the master sends each drive's
+Per SYNC cycle T_s (0x1006): one SYNC (DLC 1 with the counter where every node's 0x1019 sets the same
+one, else 0; :func:`qomni.hil.tools.dbc.sync_counter`), every valid RPDO once (the master sends each drive's
 commands every cycle), every valid TPDO with transmission type n ∈ 1…240 once every n cycles and with
 type 0/254/255 once per cycle (worst case), plus the heartbeats (0x1017 ms). Frame length: the worst
 case with bit stuffing for a standard (11-bit) data frame with n data bytes (Davis, Burns, Bril, Lukkien,
@@ -8,7 +9,7 @@ case with bit stuffing for a standard (11-bit) data frame with n data bytes (Dav
 
     bits(n) = 8n + 47 + floor((34 + 8n − 1) / 4)
 
-so SYNC = 55 bits, a 4-byte PDO 95 bits, an 8-byte PDO 135 bits.
+so a SYNC without counter is 55 bits, with one 65, a 4-byte PDO 95 bits, an 8-byte PDO 135 bits.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from canopen import objectdictionary as od
 
-from .dbc import enabled_pdos, reset_values
+from .dbc import enabled_pdos, reset_values, sync_counter
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS
 from ..pdo_codec import build_codec
 
@@ -68,10 +69,11 @@ def bus_load(bitrate: int, cycle_time: float | None = None, files: dict[int, Pat
     if files is None:
         files = {**{i: DRIVE_EDS for i in DRIVE_NODE_IDS}, **{i: ENCODER_EDS for i in ENCODER_NODE_IDS}}
     result = BusLoad(bitrate, cycle_time or 0.0)
-    result.frames.append(("SYNC", 0, 1.0, float(frame_bits(0))))
+    counters = []
     for node_id in sorted(files):
         dictionary = od.import_od(str(files[node_id]), node_id)
         values = reset_values(dictionary)
+        counters.append(values.get((0x1019, 0), 0))
         if not result.cycle_time:
             result.cycle_time = values.get((0x1006, 0), 0) * 1e-6
         for receive, n, comm, cob_id, count in enabled_pdos(dictionary, values):
@@ -86,4 +88,6 @@ def bus_load(bitrate: int, cycle_time: float | None = None, files: dict[int, Pat
             result.frames.append((f"node {node_id} heartbeat", 1, per_cycle, per_cycle * frame_bits(1)))
     if not result.cycle_time > 0:
         raise ValueError("no cycle time: give T_s (0x1006 is not in the mapping files)")
+    sync_bytes = 1 if sync_counter(counters) else 0
+    result.frames.insert(0, ("SYNC", sync_bytes, 1.0, float(frame_bits(sync_bytes))))
     return result

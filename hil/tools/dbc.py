@@ -94,7 +94,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
         counters.add(values.get((0x1019, 0), 0))
         messages += _pdo_messages(dictionary, values, node_id, name, path)
         messages += _service_messages(values, node_id, name)
-    overflow = counters.pop() if len(counters) == 1 else 0     # a node without or with another: none
+    overflow = sync_counter(counters)
     counter = [Signal("sync_counter", 0, 8, is_signed=False, minimum=1, maximum=overflow,
                       comment="1 after NMT start, +1 per SYNC, back to 1 after 0x1019",
                       receivers=[n for _, n, _ in devices])] if overflow else []
@@ -143,6 +143,14 @@ def _per_node(files, count: int, what: str) -> list:
     if len(files) != count:
         raise ValueError(f"{what}: give one file or {count} (one per node), got {len(files)}")
     return files
+
+
+def sync_counter(overflows) -> int:
+    """The counter a SYNC carries to nodes whose synchronous counter overflow values 0x1019 (CiA 301
+    §7.2.5; 0 where a node has none) are ``overflows``: their common value where they agree, else 0 (no
+    counter: a SYNC has one length for every consumer)."""
+    values = set(overflows)
+    return values.pop() if len(values) == 1 else 0
 
 
 def reset_values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
