@@ -1,15 +1,18 @@
 """Whole cycles a logger lost, counted by the decode (README, Decode).
 
-    python benchmarks/lost_cycles.py RUN_DIR [--cycles 200] [--seed 1] [--without-counter] [--work DIR]
+    python benchmarks/lost_cycles.py RUN_DIR [--cycles 200] [--seed 1] [--without-counter] [--real-time]
+        [--work DIR]
 
 RUN_DIR is a campaign of the embedded emulator (``qomni campaign --out DIR``), whose ``bus.log`` (candump
 -L, lock-step: wall-clock stamps) is the intact log. ``--cycles`` cycles, drawn at random, lose their SYNC
 and every TPDO of their cycle; the RPDOs stay, as a logger that lost the nodes' answers and the SYNC would
 leave them. Both logs are decoded with the run's data sheet and the script prints the cycles decoded, the
 lost cycles counted, and whether every row of the lossy log equals the intact log's row at its time
-(positions, steering angles, commanded torques). ``--without-counter`` strips the SYNC counter first (a
-master that sends none): a lock-step log then counts its cycles as logged. The lossy log is written under
---work (default: a temporary directory), replaced on every run.
+(positions, steering angles, commanded torques); the cycle before each gap is skipped as incomplete (it
+may hold two cycles' frames). ``--without-counter`` strips the SYNC counter first (a master that sends
+none): a lock-step log then counts its cycles as logged. ``--real-time`` restamps the log as a real-time
+master's: cycle k's frames at k·T_s plus a SYNC jitter of 50 µs (normal, σ, seeded), 10 µs apart. The
+logs are written under --work (default: a temporary directory), replaced on every run.
 """
 from __future__ import annotations
 
@@ -32,6 +35,21 @@ def cob_id(line: str) -> int:
     return int(line.split()[2].split("#")[0], 16)
 
 
+def restamped(lines: list[str], period: float, rng: random.Random) -> list[str]:
+    """candump -L lines stamped as a real-time master's log: the frames from SYNC k on at k·period plus a
+    jitter of 50 µs (σ), 10 µs apart."""
+    out, start, within = [], 1.7e9, 0
+    for line in lines:
+        if cob_id(line) == 0x80:
+            start, within = start + period, 0
+            t = start + rng.gauss(0.0, 50e-6)
+        else:
+            within += 1
+            t = start + 1e-5 * within
+        out.append(f"({t:.6f}) {line.split(' ', 1)[1]}")
+    return out
+
+
 def decoded(path: Path, drive) -> tuple[dict, DecodeReport]:
     """{cycle index: DecodedCycle} of a log, and its report."""
     report = DecodeReport()
@@ -47,12 +65,15 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=200)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--without-counter", action="store_true")
+    parser.add_argument("--real-time", action="store_true")
     parser.add_argument("--work", type=Path)
     args = parser.parse_args()
     drive = datasheet_from_metadata(read_json(args.run / "metadata.json"), str(args.run / "metadata.json")).drive
     lines = (args.run / "bus.log").read_text().splitlines()
     if args.without_counter:
         lines = [re.sub(r" 080#[0-9A-F]{2}\b", " 080#", line) for line in lines]
+    if args.real_time:
+        lines = restamped(lines, drive.cycle_time, random.Random(args.seed + 1))
     syncs = [i for i, line in enumerate(lines) if cob_id(line) == 0x80]
     gone = random.Random(args.seed).sample(range(10, len(syncs) - 1), args.cycles)
     drop = set()
@@ -69,7 +90,8 @@ def main() -> None:
     same = all(k in intact and np.array_equal(c.measurement.motor_position, intact[k].measurement.motor_position)
                and np.array_equal(c.measurement.alpha, intact[k].measurement.alpha)
                and np.array_equal(c.motor_torque_cmd, intact[k].motor_torque_cmd) for k, c in lossy.items())
-    print(f"intact log: {intact_report.cycles} cycles, SYNC counter to {intact_report.sync_counter or 'none'}")
+    print(f"intact log: {intact_report.cycles} cycles, SYNC counter to {intact_report.sync_counter or 'none'}, "
+          f"real-time clock {intact_report.real_time_clock}")
     print(f"lossy log, {args.cycles} whole cycles deleted: {report.cycles} cycles decoded, "
           f"{report.lost_cycles} lost cycles counted, {report.incomplete} incomplete, "
           f"{report.sync_restored} SYNCs restored")

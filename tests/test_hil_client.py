@@ -269,8 +269,8 @@ def test_the_sync_carries_the_counter_0x1019_sets_and_a_log_counts_lost_cycles_a
     report = DecodeReport()
     cycles = list(decode_log(lossy, encoder_increments=INCREMENTS, steering_sensor_bits=BITS, cycle_time=T_S,
                              report=report))
-    assert report.sync_counter == 8 and report.lost_cycles == 10
-    kept = intact[:6] + intact[9:20] + intact[27:]
+    assert report.sync_counter == 8 and report.lost_cycles == 10 and report.incomplete == 2
+    kept = intact[:5] + intact[9:19] + intact[27:]                    # the cycle before each gap is skipped
     assert [c.measurement.time for c in cycles] == pytest.approx([m.time for m in kept])
     for got, want in zip(cycles, kept):
         np.testing.assert_array_equal(got.measurement.motor_position, want.motor_position)

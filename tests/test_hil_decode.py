@@ -201,15 +201,35 @@ def test_a_lock_step_log_that_lost_whole_cycles_counts_them_by_the_sync_counter(
     intact, report = decode(lines)
     assert not report.real_time_clock and report.sync_counter == N_CYCLES and len(intact) == N_CYCLES
     cycles, report = decode(lines[:syncs[10]] + lines[syncs[12]:])
-    assert report.lost_cycles == 2 and len(cycles) == N_CYCLES - 2
+    assert report.lost_cycles == 2 and report.incomplete == 1 and len(cycles) == N_CYCLES - 3
     times = [round(c.measurement.time, 9) for c in cycles]
-    assert times == [round(c.measurement.time, 9) for c in intact[:10] + intact[12:]]
-    for got, want in zip(cycles[10:], intact[12:]):
+    assert times == [round(c.measurement.time, 9) for c in intact[:9] + intact[12:]]   # 9: before the gap
+    for got, want in zip(cycles[9:], intact[12:]):
         np.testing.assert_array_equal(got.measurement.motor_position, want.measurement.motor_position)
     assert report.warnings == []
     _, report = decode(_without_counter(lines[:syncs[10]] + lines[syncs[12]:]))
     assert report.sync_counter == 0 and report.lost_cycles == 0
     assert len(report.warnings) == 1 and "whole cycles the logger lost" in report.warnings[0]
+
+
+def test_a_burst_that_left_one_complete_looking_cycle_of_two_is_not_decoded_as_one(session, tmp_path):
+    """A logger's burst loss takes cycle 10's last TPDOs, SYNC 11 and cycle 11's first TPDOs: what is left
+    between SYNC 10 and SYNC 12 is one frame of each COB-ID, two cycles' frames that look like one complete
+    cycle. The SYNC counter shows SYNC 11 missing, so that cycle is skipped as well, never decoded as
+    cycle 10's row."""
+    _, logs, _, _ = session
+    lines = logs[1].read_text().splitlines()
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    tpdo = [i for i in range(syncs[10], syncs[12]) if 0x181 <= int(lines[i].split()[2].split("#")[0], 16) <= 0x286]
+    first_half = tpdo[:len(tpdo) // 4]                          # cycle 10's first TPDOs stay
+    kept_11 = [i for i in tpdo if i > syncs[11]][len(first_half):]    # cycle 11's other TPDOs stay
+    burst = set(range(syncs[10] + 1, syncs[12])) - set(first_half) - set(kept_11)
+    burst = {i for i in burst if i == syncs[11] or i in tpdo}
+    cobs = [lines[i].split()[2].split("#")[0] for i in sorted(set(tpdo) - burst)]
+    assert sorted(cobs) == sorted(set(cobs)) and len(cobs) == len(tpdo) // 2   # one complete-looking set
+    cycles, report = _decode_lines(tmp_path / "burst.log", [l for i, l in enumerate(lines) if i not in burst])
+    assert report.lost_cycles == 1 and report.incomplete == 1 and report.sync_restored == 0
+    assert [round(c.measurement.time / T_S) for c in cycles] == [k for k in range(N_CYCLES) if k not in (10, 11)]
 
 
 def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, tmp_path):
@@ -230,10 +250,10 @@ def test_a_real_time_log_that_lost_whole_cycles_keeps_the_later_times(session, t
     at = syncs[10]                                                 # the next SYNC, logged three times
     lossy = lossy[:at] + [lossy[at]] * 2 + lossy[at:]
     cycles, report = decode(lossy)
-    assert report.lost_cycles == 2 and report.duplicates == 2 and len(cycles) == N_CYCLES - 2
+    assert report.lost_cycles == 2 and report.duplicates == 2 and len(cycles) == N_CYCLES - 3
     times = {round(c.measurement.time, 9) for c in cycles}
     assert times == {round(c.measurement.time, 9) for c in intact} - {round(c.measurement.time, 9) for c in
-                                                                       intact[10:12]}
+                                                                       intact[9:12]}
     lockstep = _without_counter(logs[1].read_text().splitlines())
     syncs = [i for i, line in enumerate(lockstep) if " 080#" in line]
     _, report = decode(lockstep[:syncs[10]] + lockstep[syncs[12]:])

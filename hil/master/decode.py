@@ -24,7 +24,10 @@ most once per SYNC) sent again before the next SYNC: the cycle boundary is resto
 (:attr:`DecodeReport.sync_restored`), so the later cycles keep their time; the same frame logged twice
 (identical data and time stamp) is dropped and counted (:attr:`DecodeReport.duplicates`). Whole cycles
 missing from the log, SYNC and TPDOs alike, are counted (:attr:`DecodeReport.lost_cycles`) and skipped by
-the count, so later cycles keep their time and the readers of the run refuse the gap, naming the line.
+the count, so later cycles keep their time and the readers of the run refuse the gap, naming the line;
+the cycle before such a gap is skipped as incomplete too, since a burst that took its last TPDOs, the
+SYNCs after it and the next cycle's first TPDOs leaves what looks like one complete cycle of two cycles'
+frames.
 Where the SYNCs carry a counter (CiA 301 §7.2.5, 0x1019 ≥ 2; it runs to the 0x1019 the log's master
 downloaded, else to the largest counter logged), a SYNC whose counter is n past the one due says so,
 whatever the time stamps. Without a counter, where the log's SYNC time stamps run on the T_s grid
@@ -394,14 +397,22 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
                 continue
             lost_sync = True                             # sent again: the SYNC between the two is not in the log
             report.sync_restored += 1
-        lost = 0
+        lost = 0              # whole cycles missing from the log before this SYNC
         if cob == sync_id and msg is not None and len(msg.data) == 1 and overflow:
             if cycle is not None and next_counter is not None:
                 lost = (msg.data[0] - next_counter) % overflow     # SYNCs with their counters not logged
             next_counter = msg.data[0] % overflow + 1
         elif (cob == sync_id or lost_sync) and next_counter is not None:
             next_counter = next_counter % overflow + 1
+        elif cob == sync_id and msg is not None and cycle is not None and boundary is not None and \
+                report.real_time_clock and not overflow:
+            periods = (msg.timestamp - boundary) / period
+            if round(periods) > 1 and abs(periods - round(periods)) <= GRID_TOLERANCE:
+                lost = int(round(periods)) - 1
         if cob == sync_id or lost_sync:
+            if lost and rx:
+                report.incomplete += 1                   # a burst may have left two cycles' frames in it
+                rx = {}
             if cycle is not None and rx:
                 out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, encoder_increments,
                             steering_sensor_bits)
@@ -417,12 +428,6 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
                 cycle += 1 + lost
                 report.lost_cycles += lost
                 if report.real_time_clock and msg is not None and not overflow:
-                    if cob == sync_id and boundary is not None:
-                        periods = (msg.timestamp - boundary) / period
-                        lost = int(round(periods)) - 1
-                        if lost > 0 and abs(periods - round(periods)) <= GRID_TOLERANCE:
-                            cycle += lost                # SYNC and TPDOs of whole cycles not in the log
-                            report.lost_cycles += lost
                     boundary = msg.timestamp if cob == sync_id or boundary is None else boundary + period
         if cob == sync_id:
             pass
