@@ -184,6 +184,14 @@ def _real_time(lines: list[str]) -> list[str]:
     return out
 
 
+TPDOS = {0x181, 0x182, 0x183, 0x184, 0x185, 0x186, 0x281, 0x282, 0x283, 0x284}
+
+
+def _cob(line: str) -> int:
+    """COB-ID of a candump -L line."""
+    return int(line.split()[2].split("#")[0], 16)
+
+
 def _without_counter(lines: list[str]) -> list[str]:
     """The candump -L lines with the SYNC's counter taken out: a master that sends none."""
     return [re.sub(r" 080#[0-9A-F]{2}\b", " 080#", line) for line in lines]
@@ -212,6 +220,27 @@ def test_a_lock_step_log_that_lost_whole_cycles_counts_them_by_the_sync_counter(
     assert len(report.warnings) == 1 and "whole cycles the logger lost" in report.warnings[0]
 
 
+def test_a_frame_logged_twice_stamped_apart_is_not_taken_for_a_lost_sync_where_the_sync_counts(session, tmp_path):
+    """A logger that wrote cycle 10's last TPDO a second time, 0.1 ms later: it looks like the next cycle's
+    frame after a lost SYNC, but SYNC 11's counter says none was lost, so it is a duplicate, and every row
+    keeps its time; without the counter it is taken for a lost SYNC (every later row a cycle late), which
+    is why the decode then warns that it cannot count."""
+    _, logs, _, _ = session
+    lines = logs[1].read_text().splitlines()
+    syncs = [i for i, line in enumerate(lines) if " 080#" in line]
+    last = max(i for i in range(syncs[10], syncs[11]) if _cob(lines[i]) in TPDOS)
+    stamp, rest = lines[last].split(" ", 1)
+    again = lines[:last + 1] + [f"({float(stamp[1:-1]) + 1e-4:.6f}) {rest}"] + lines[last + 1:]
+    intact, _ = _decode_lines(tmp_path / "intact.log", lines)
+    cycles, report = _decode_lines(tmp_path / "again.log", again)
+    assert report.duplicates == 1 and report.sync_restored == 0 and report.lost_cycles == 0
+    assert [c.measurement.time for c in cycles] == [c.measurement.time for c in intact]
+    for got, want in zip(cycles, intact):
+        np.testing.assert_array_equal(got.measurement.motor_position, want.measurement.motor_position)
+    _, report = _decode_lines(tmp_path / "plain.log", _without_counter(again))
+    assert report.sync_restored == 1 and report.warnings
+
+
 def test_a_burst_that_left_one_complete_looking_cycle_of_two_is_not_decoded_as_one(session, tmp_path):
     """A logger's burst loss takes cycle 10's last TPDOs, SYNC 11 and cycle 11's first TPDOs: what is left
     between SYNC 10 and SYNC 12 is one frame of each COB-ID, two cycles' frames that look like one complete
@@ -220,7 +249,7 @@ def test_a_burst_that_left_one_complete_looking_cycle_of_two_is_not_decoded_as_o
     _, logs, _, _ = session
     lines = logs[1].read_text().splitlines()
     syncs = [i for i, line in enumerate(lines) if " 080#" in line]
-    tpdo = [i for i in range(syncs[10], syncs[12]) if 0x181 <= int(lines[i].split()[2].split("#")[0], 16) <= 0x286]
+    tpdo = [i for i in range(syncs[10], syncs[12]) if _cob(lines[i]) in TPDOS]
     first_half = tpdo[:len(tpdo) // 4]                          # cycle 10's first TPDOs stay
     kept_11 = [i for i in tpdo if i > syncs[11]][len(first_half):]    # cycle 11's other TPDOs stay
     burst = set(range(syncs[10] + 1, syncs[12])) - set(first_half) - set(kept_11)

@@ -30,7 +30,9 @@ SYNCs after it and the next cycle's first TPDOs leaves what looks like one compl
 frames.
 Where the SYNCs carry a counter (CiA 301 §7.2.5, 0x1019 ≥ 2; it runs to the 0x1019 the log's master
 downloaded, else to the largest counter logged), a SYNC whose counter is n past the one due says so,
-whatever the time stamps. Without a counter, where the log's SYNC time stamps run on the T_s grid
+whatever the time stamps, and fewer than the boundaries restored since the last SYNC says that a frame
+logged twice, stamped apart, was taken for a lost SYNC: those are counted as duplicates and the later
+cycles keep their time. Without a counter, where the log's SYNC time stamps run on the T_s grid
 (:func:`_real_time_clock`: a real-time master's log), a SYNC that comes n + 1 periods after the one
 before (within :data:`GRID_TOLERANCE`) says so; a lock-step recording's stamps are not real time, and
 its count is then the SYNCs logged, with a warning. A log cut while it was written
@@ -377,7 +379,8 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
     seen_at: dict[int, float] = {}
     unwrap = None
     overflow = report.sync_counter
-    next_counter = None   # the counter the next SYNC carries, None where unknown (before the first)
+    last_counter = None   # the counter of the last SYNC logged, None where unknown (before the first)
+    restored = 0          # boundaries restored since that SYNC
 
     for msg in itertools.chain(reader, [None]):          # None: the end closes the last cycle
         if msg is not None:
@@ -397,22 +400,26 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
                 continue
             lost_sync = True                             # sent again: the SYNC between the two is not in the log
             report.sync_restored += 1
+            restored += 1
         lost = 0              # whole cycles missing from the log before this SYNC
-        if cob == sync_id and msg is not None and len(msg.data) == 1 and overflow:
-            if cycle is not None and next_counter is not None:
-                lost = (msg.data[0] - next_counter) % overflow     # SYNCs with their counters not logged
-            next_counter = msg.data[0] % overflow + 1
-        elif (cob == sync_id or lost_sync) and next_counter is not None:
-            next_counter = next_counter % overflow + 1
+        if cob == sync_id and msg is not None and overflow:
+            if len(msg.data) == 1 and cycle is not None and last_counter is not None:
+                missing = (msg.data[0] - last_counter - 1) % overflow   # SYNCs between the two not logged
+                lost = missing - restored        # beyond those restored; below: restored for a frame logged twice
+                if lost < 0:
+                    report.sync_restored += lost
+                    report.duplicates -= lost
+            last_counter, restored = (msg.data[0] if len(msg.data) == 1 else None), 0
         elif cob == sync_id and msg is not None and cycle is not None and boundary is not None and \
                 report.real_time_clock and not overflow:
             periods = (msg.timestamp - boundary) / period
             if round(periods) > 1 and abs(periods - round(periods)) <= GRID_TOLERANCE:
                 lost = int(round(periods)) - 1
         if cob == sync_id or lost_sync:
-            if lost and rx:
+            if lost > 0 and rx:
                 report.incomplete += 1                   # a burst may have left two cycles' frames in it
-                rx = {}
+            if lost:
+                rx = {}                                  # below 0: the rest of a cycle already decoded
             if cycle is not None and rx:
                 out = _emit(rx, mapping, expected, cycle - 1, period, cmd, rated, unwrap, encoder_increments,
                             steering_sensor_bits)
@@ -426,7 +433,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
             cmd = pending_cmd.copy()
             if cycle is not None:
                 cycle += 1 + lost
-                report.lost_cycles += lost
+                report.lost_cycles += max(lost, 0)
                 if report.real_time_clock and msg is not None and not overflow:
                     boundary = msg.timestamp if cob == sync_id or boundary is None else boundary + period
         if cob == sync_id:
@@ -434,7 +441,7 @@ def _cycles(reader, mapping, period, rated, report, encoder_increments, steering
         elif cob == 0x000 and len(msg.data) == 2 and msg.data[0] == _NMT_START:
             if cycle is None or cycle > 0:
                 report.sessions += 1
-            cycle, unwrap, rx, boundary, next_counter = 0, None, {}, None, None
+            cycle, unwrap, rx, boundary, last_counter, restored = 0, None, {}, None, None, 0
         elif cob in mapping.tpdos:
             rx[cob] = bytes(msg.data)
             seen_at[cob] = msg.timestamp
