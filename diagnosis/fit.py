@@ -25,6 +25,7 @@ weighted held-out residual over all channels does not grow (``Evaluation.confirm
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -81,68 +82,49 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     hypothesis is tested against; the new one's only: the base of an effect added to accepted ones,
     which stay free).
 
+    The base and offset columns are the same for every hypothesis fitted on ``problem``: their block is
+    factored once (QR, kept in ``cache``) and each hypothesis' columns are fitted to what that block
+    leaves of the rows (Frisch–Waugh–Lovell), which gives the same solution, RSS and covariance of θ as
+    the whole system. Where either part is rank-deficient the whole system is solved instead.
+
     Raises:
         ValueError: ``held`` without ``theta0``."""
     if held and theta0 is None:
         raise ValueError("coefficients held at θ₀ need θ₀")
-    kin = [i for i, c in enumerate(problem.channels) if c.kind != "torque"]
     q = len(h.parameters) - held if h is not None else 0
-    n_base = len(P1_NAMES)
-    widths = [problem.channels[i].nuisance.shape[1] for i in kin]
-    starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
-    n_cols = n_base + int(starts[-1]) + q
-    blocks_A, blocks_b, used = [], [], []
+    block = _base_block(problem, model, cache)
+    n_base, n_cols = len(P1_NAMES), block.width + q
+    blocks_E, blocks_b = [], []
     any_effect = False
-    for i, ch in enumerate(problem.channels):
-        rows = problem.fit_rows[i]
-        if not rows.any() or problem.weights[i] == 0:
-            continue
-        A = np.zeros((int(rows.sum()), n_cols))
-        if ch.kind == "torque":
-            A[:, :n_base] = ch.base[rows]
-        else:
-            j = kin.index(i)
-            A[:, n_base + starts[j]:n_base + starts[j + 1]] = ch.nuisance[rows]
+    for i in block.used:
+        ch, rows, w = problem.channels[i], problem.fit_rows[i], problem.weights[i]
         if q:
+            E = np.zeros((int(rows.sum()), q))
             cols = cached_columns(h, nonlinear, ch, cache)
             if cols is not None:
-                A[:, -q:] = cols[rows][:, :q]
+                E[:] = cols[rows][:, :q]
                 any_effect = any_effect or bool(np.any(cols[rows] != 0))
-        blocks_A.append(A * problem.weights[i])
-        used.append(i)
+            blocks_E.append(E * w)
         target = ch.residual[rows]
         shift = _shift(h, nonlinear, theta0, ch, cache)
         if shift is not None:
             target = target - shift[rows]
-        blocks_b.append(target * problem.weights[i])
+        blocks_b.append(target * w)
     if q and not any_effect:
         return None
-    if problem.base_prior:
-        P = np.zeros((n_base, n_cols))
-        P[:, :n_base] = np.diag(1.0 / base_prior_std(model))
-        A = np.vstack(blocks_A + [P])
-        b = np.concatenate(blocks_b + [np.zeros(n_base)])
-    elif problem.measured is not None:
-        m = problem.measured
-        P = np.zeros((len(m.index), n_cols))
-        P[np.arange(len(m.index)), list(m.index)] = 1.0 / m.std
-        A = np.vstack(blocks_A + [P])
-        b = np.concatenate(blocks_b + [m.delta / m.std])
+    b = np.concatenate(blocks_b + [block.prior_rhs])
+    if q:
+        E = np.vstack(blocks_E + [np.zeros((len(block.prior_rhs), q))])
+        x, rss, theta_cov_scaled, scale_e = _solve_beside(block, E, b)
     else:
-        A, b = np.vstack(blocks_A), np.concatenate(blocks_b)
-    scale = np.linalg.norm(A, axis=0)
-    scale[scale == 0] = 1.0
-    x, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
-    x = x / scale
-    rss = float(np.sum((b - A @ x) ** 2))
-    n_eff = sum(len(blk) / problem.correlation_rows(i, lag) for blk, i in zip(blocks_b, used))
+        x, rss, theta_cov_scaled, scale_e = _solve_beside(block, None, b)
+    n_eff = sum(len(blk) / problem.correlation_rows(i, lag) for blk, i in zip(blocks_b, block.used))
     dof = max(n_eff - n_cols, 1.0)
     s2 = max(rss / dof, 1.0)
-    cov = np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale) * s2
-    offsets = {problem.channels[i].name: x[n_base + starts[j]:n_base + starts[j + 1]].copy()
-               for j, i in enumerate(kin)}
+    offsets = {problem.channels[i].name: x[n_base + block.starts[j]:n_base + block.starts[j + 1]].copy()
+               for j, i in enumerate(block.kin)}
     theta = x[n_cols - q:] if q else np.zeros(0)
-    theta_cov = cov[n_cols - q:, n_cols - q:] if q else np.zeros((0, 0))
+    theta_cov = theta_cov_scaled / np.outer(scale_e, scale_e) * s2 if q else np.zeros((0, 0))
     if theta0 is not None:
         theta = theta + np.asarray(theta0)[:q]
     if held:
@@ -151,6 +133,137 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
         return Fit(h, nonlinear, np.concatenate([theta, np.asarray(theta0)[q:]]), full_cov, x[:n_base],
                    offsets, rss, n_eff, n_cols)
     return Fit(h, nonlinear, theta, theta_cov, x[:n_base], offsets, rss, n_eff, n_cols, theta0=theta0)
+
+
+#: Smallest singular value, relative to the largest, of the scaled base block or of a hypothesis' scaled
+#: columns beside it, for which :func:`solve` fits the two apart; below it the whole system is solved by
+#: ``numpy.linalg.lstsq`` (whose cut-off, ε·max(n, k)·σ_max, lies below this on these problems).
+SEPARABLE_CONDITION = 1e-8
+
+
+@dataclass
+class _BaseBlock:
+    """The weighted base and offset columns of a problem's fit rows and prior rows, scaled to unit norm,
+    with their thin QR factors (``q_factor`` None where the block is rank-deficient)."""
+
+    used: list            # channels with fit rows and weight
+    kin: list             # the kinematic and rolling channels (offset columns)
+    starts: np.ndarray    # offset columns of each of ``kin``, from n_base on
+    width: int            # base + offset columns
+    columns: np.ndarray | None   # (rows, width) weighted; kept only where there is no QR
+    scale: np.ndarray     # (width,) column norms (1 where 0)
+    prior_rhs: np.ndarray
+    q_factor: np.ndarray | None
+    r_factor: np.ndarray | None
+
+    @classmethod
+    def factored(cls, used: list, kin: list, starts: np.ndarray, columns: np.ndarray,
+                 prior_rhs: np.ndarray) -> "_BaseBlock":
+        """The block of the weighted ``columns`` (rows, width), scaled and factored."""
+        scale = np.linalg.norm(columns, axis=0)
+        scale[scale == 0] = 1.0
+        q_factor, r_factor = np.linalg.qr(columns / scale)
+        d = np.abs(np.diag(r_factor))
+        if not len(d) or d.min() < SEPARABLE_CONDITION * d.max():
+            q_factor = r_factor = None
+        else:
+            columns = None                           # (Q R)·scale where the whole system is needed
+        return cls(used, kin, starts, columns.shape[1] if columns is not None else r_factor.shape[1], columns,
+                   scale, prior_rhs, q_factor, r_factor)
+
+
+#: Base blocks :func:`solve` keeps in its cache, the most recently used (each is rows × columns floats: a
+#: full campaign's 30–40 MB). A diagnosis fits one problem's hypotheses in a row and comes back to a
+#: problem at most two others later, but for one in 350 fits.
+BASE_BLOCKS_KEPT = 4
+
+
+def _base_block(problem: Problem, model: IdentificationResult, cache: dict | None) -> _BaseBlock:
+    """The base block of ``problem`` (:class:`_BaseBlock`), kept in ``cache`` for the
+    :data:`BASE_BLOCKS_KEPT` problems used last."""
+    kept = None if cache is None else cache.setdefault("base blocks", OrderedDict())
+    if kept is not None and id(problem) in kept and kept[id(problem)][0] is problem:
+        kept.move_to_end(id(problem))
+        return kept[id(problem)][1]
+    kin = [i for i, c in enumerate(problem.channels) if c.kind != "torque"]
+    n_base = len(P1_NAMES)
+    widths = [problem.channels[i].nuisance.shape[1] for i in kin]
+    starts = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+    width = n_base + int(starts[-1])
+    blocks, used = [], []
+    for i, ch in enumerate(problem.channels):
+        rows = problem.fit_rows[i]
+        if not rows.any() or problem.weights[i] == 0:
+            continue
+        A = np.zeros((int(rows.sum()), width))
+        if ch.kind == "torque":
+            A[:, :n_base] = ch.base[rows]
+        else:
+            j = kin.index(i)
+            A[:, n_base + starts[j]:n_base + starts[j + 1]] = ch.nuisance[rows]
+        blocks.append(A * problem.weights[i])
+        used.append(i)
+    if problem.base_prior:
+        P = np.zeros((n_base, width))
+        P[:, :n_base] = np.diag(1.0 / base_prior_std(model))
+        prior_rhs = np.zeros(n_base)
+    elif problem.measured is not None:
+        m = problem.measured
+        P = np.zeros((len(m.index), width))
+        P[np.arange(len(m.index)), list(m.index)] = 1.0 / m.std
+        prior_rhs = np.asarray(m.delta / m.std, dtype=float)
+    else:
+        P, prior_rhs = np.zeros((0, width)), np.zeros(0)
+    block = _BaseBlock.factored(used, kin, starts, np.vstack(blocks + [P]), prior_rhs)
+    if kept is not None:
+        kept[id(problem)] = (problem, block)
+        while len(kept) > BASE_BLOCKS_KEPT:
+            kept.popitem(last=False)
+    return block
+
+
+def _solve_beside(block: _BaseBlock, E: np.ndarray | None, b: np.ndarray):
+    """Least squares of ``b`` on the base block and the hypothesis' columns ``E`` (rows as the block's;
+    None: none): the solution (base, offsets, θ), the RSS, θ's covariance before its noise scale and
+    column scaling (the θ block of ((A/s)ᵀ(A/s))⁺), and θ's column scale."""
+    q = 0 if E is None else E.shape[1]
+    scale_e = np.ones(q)
+    if q:
+        scale_e = np.linalg.norm(E, axis=0)
+        scale_e[scale_e == 0] = 1.0
+    Q, R = block.q_factor, block.r_factor
+    if Q is not None:
+        qtb = Q.T @ b
+        if not q:
+            x0 = _upper_solve(R, qtb)
+            r = b - Q @ qtb
+            return x0 / block.scale, float(r @ r), np.zeros((0, 0)), scale_e
+        Es = E / scale_e
+        qte = Q.T @ Es
+        e_perp = Es - Q @ qte
+        sv = np.linalg.svd(e_perp, compute_uv=False)
+        if sv.min() >= SEPARABLE_CONDITION * max(sv.max(), 1.0):
+            b_perp = b - Q @ qtb
+            theta_s, *_ = np.linalg.lstsq(e_perp, b_perp, rcond=None)
+            x0 = _upper_solve(R, qtb - qte @ theta_s)
+            r = b_perp - e_perp @ theta_s
+            return (np.concatenate([x0 / block.scale, theta_s / scale_e]), float(r @ r),
+                    np.linalg.inv(e_perp.T @ e_perp), scale_e)
+    columns = block.columns if block.columns is not None else (Q @ R) * block.scale
+    A = columns if not q else np.hstack([columns, E])
+    scale = np.concatenate([block.scale, scale_e])
+    As = A / scale
+    x, *_ = np.linalg.lstsq(As, b, rcond=None)
+    r = b - As @ x
+    cov = np.linalg.pinv(As.T @ As)
+    return x / scale, float(r @ r), cov[block.width:, block.width:], scale_e
+
+
+def _upper_solve(R: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """R⁻¹ y for the upper triangular R of a QR factorization."""
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(R, y, lower=False)
 
 
 def base_prior_std(model) -> np.ndarray:
