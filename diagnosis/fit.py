@@ -162,14 +162,16 @@ class _BaseBlock:
         """The block of the weighted ``columns`` (rows, width), scaled and factored."""
         scale = np.linalg.norm(columns, axis=0)
         scale[scale == 0] = 1.0
-        q_factor, r_factor = np.linalg.qr(columns / scale)
-        d = np.abs(np.diag(r_factor))
-        if not len(d) or d.min() < SEPARABLE_CONDITION * d.max():
-            q_factor = r_factor = None
-        else:
-            columns = None                           # (Q R)·scale where the whole system is needed
-        return cls(used, kin, starts, columns.shape[1] if columns is not None else r_factor.shape[1], columns,
-                   scale, prior_rhs, q_factor, r_factor)
+        q_factor = r_factor = None
+        if columns.shape[0] >= columns.shape[1] > 0:
+            q_factor, r_factor = np.linalg.qr(columns / scale)
+            d = np.abs(np.diag(r_factor))
+            if d.min() < SEPARABLE_CONDITION * d.max():
+                q_factor = r_factor = None
+        if q_factor is None:
+            return cls(used, kin, starts, columns.shape[1], columns, scale, prior_rhs, None, None)
+        # the columns are (Q R)·scale where the whole system is needed
+        return cls(used, kin, starts, columns.shape[1], None, scale, prior_rhs, q_factor, r_factor)
 
 
 #: Base blocks :func:`solve` keeps in its cache, the most recently used (each is rows × columns floats: a

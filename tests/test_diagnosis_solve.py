@@ -1,6 +1,7 @@
 """The diagnosis' least squares (diagnosis.fit.solve): the base block factored once and each hypothesis
 fitted beside it (Frisch–Waugh–Lovell) against the whole stacked system solved at once."""
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -74,3 +75,14 @@ def test_a_rank_deficient_base_block_is_solved_as_one_system():
     want_x, want_rss, _ = _whole(columns, E, b)
     np.testing.assert_allclose(x, want_x, rtol=1e-8, atol=1e-12)
     np.testing.assert_allclose(rss, want_rss, rtol=1e-10)
+
+
+def test_fewer_rows_than_base_columns_are_solved_as_one_system():
+    rng = np.random.default_rng(5)
+    columns, E, b = rng.normal(size=(4, 6)), rng.normal(size=(4, 1)), rng.normal(size=4)
+    block = _BaseBlock.factored([0], [], np.zeros(1, dtype=int), columns, np.zeros(0))
+    assert block.q_factor is None
+    x, rss, _, _ = _solve_beside(block, E, b)
+    want_x, want_rss, _ = _whole(columns, E, b)
+    np.testing.assert_allclose(x, want_x, rtol=1e-8, atol=1e-12)
+    assert rss == pytest.approx(want_rss, abs=1e-20)
