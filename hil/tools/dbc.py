@@ -147,10 +147,11 @@ def _per_node(files, count: int, what: str) -> list:
 
 def sync_counter(overflows) -> int:
     """The counter a SYNC carries to nodes whose synchronous counter overflow values 0x1019 (CiA 301
-    §7.2.5; 0 where a node has none) are ``overflows``: their common value where they agree, else 0 (no
-    counter: a SYNC has one length for every consumer)."""
+    §7.2.5; 0 where a node has none) are ``overflows``: their common value where they agree on one of
+    2…240, else 0 (no counter: a SYNC has one length for every consumer, and 1, 241…255 are reserved)."""
     values = set(overflows)
-    return values.pop() if len(values) == 1 else 0
+    value = values.pop() if len(values) == 1 else 0
+    return value if 2 <= value <= 240 else 0
 
 
 def reset_values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
