@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
+from scipy.linalg import solve_triangular
 
 from qomni.conventions import EPSILON, P1_NAMES
 from qomni.ident.result import IdentificationResult
@@ -149,12 +150,16 @@ class _BaseBlock:
     used: list            # channels with fit rows and weight
     kin: list             # the kinematic and rolling channels (offset columns)
     starts: np.ndarray    # offset columns of each of ``kin``, from n_base on
-    width: int            # base + offset columns
     columns: np.ndarray | None   # (rows, width) weighted; kept only where there is no QR
     scale: np.ndarray     # (width,) column norms (1 where 0)
     prior_rhs: np.ndarray
     q_factor: np.ndarray | None
     r_factor: np.ndarray | None
+
+    @property
+    def width(self) -> int:
+        """Base + offset columns."""
+        return len(self.scale)
 
     @classmethod
     def factored(cls, used: list, kin: list, starts: np.ndarray, columns: np.ndarray,
@@ -169,9 +174,9 @@ class _BaseBlock:
             if d.min() < SEPARABLE_CONDITION * d.max():
                 q_factor = r_factor = None
         if q_factor is None:
-            return cls(used, kin, starts, columns.shape[1], columns, scale, prior_rhs, None, None)
+            return cls(used, kin, starts, columns, scale, prior_rhs, None, None)
         # the columns are (Q R)·scale where the whole system is needed
-        return cls(used, kin, starts, columns.shape[1], None, scale, prior_rhs, q_factor, r_factor)
+        return cls(used, kin, starts, None, scale, prior_rhs, q_factor, r_factor)
 
 
 #: Base blocks :func:`solve` keeps in its cache, the most recently used (each is rows × columns floats: a
@@ -237,7 +242,7 @@ def _solve_beside(block: _BaseBlock, E: np.ndarray | None, b: np.ndarray):
     if Q is not None:
         qtb = Q.T @ b
         if not q:
-            x0 = _upper_solve(R, qtb)
+            x0 = solve_triangular(R, qtb)
             r = b - Q @ qtb
             return x0 / block.scale, float(r @ r), np.zeros((0, 0)), scale_e
         Es = E / scale_e
@@ -247,7 +252,7 @@ def _solve_beside(block: _BaseBlock, E: np.ndarray | None, b: np.ndarray):
         if sv.min() >= SEPARABLE_CONDITION * max(sv.max(), 1.0):
             b_perp = b - Q @ qtb
             theta_s, *_ = np.linalg.lstsq(e_perp, b_perp, rcond=None)
-            x0 = _upper_solve(R, qtb - qte @ theta_s)
+            x0 = solve_triangular(R, qtb - qte @ theta_s)
             r = b_perp - e_perp @ theta_s
             return (np.concatenate([x0 / block.scale, theta_s / scale_e]), float(r @ r),
                     np.linalg.inv(e_perp.T @ e_perp), scale_e)
@@ -259,13 +264,6 @@ def _solve_beside(block: _BaseBlock, E: np.ndarray | None, b: np.ndarray):
     r = b - As @ x
     cov = np.linalg.pinv(As.T @ As)
     return x / scale, float(r @ r), cov[block.width:, block.width:], scale_e
-
-
-def _upper_solve(R: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """R⁻¹ y for the upper triangular R of a QR factorization."""
-    from scipy.linalg import solve_triangular
-
-    return solve_triangular(R, y, lower=False)
 
 
 def base_prior_std(model) -> np.ndarray:

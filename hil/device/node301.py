@@ -46,7 +46,8 @@ from canopen.sdo import SdoAbortedError
 
 from ..cia import (ABORT_DEVICE_STATE, ABORT_NO_DATA, ABORT_READ_ONLY, ABORT_SUBINDEX_MISSING, ABORT_VALUE_HIGH,
                    ABORT_VALUE_LOW, ABORT_VALUE_RANGE, ABORT_WRITE_ONLY, COMMUNICATION_CYCLE_PERIOD,
-                   CONSUMER_HEARTBEAT_TIME, INITIALISING, PRE_DEFINED_ERROR_FIELD, SYNC_COUNTER_OVERFLOW)
+                   CONSUMER_HEARTBEAT_TIME, INITIALISING, PRE_DEFINED_ERROR_FIELD, SYNC_COUNTER_OVERFLOW,
+                   valid_sync_counter)
 from .emcy import EmcyService
 from .nmt import NmtService, NodeNmt
 from .pdo import PdoService, _Pdo
@@ -182,7 +183,7 @@ class Node301(NmtService, PdoService, SupervisionService, EmcyService, canopen.L
         elif index == PRE_DEFINED_ERROR_FIELD and subindex == 0 and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         elif index == SYNC_COUNTER_OVERFLOW:
-            if value == 1 or value > 240:                # reserved values (CiA 301 §7.5.2.20)
+            if not valid_sync_counter(value):           # reserved values (CiA 301 §7.5.2.20)
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             if value != self.values.get((index, 0)) and self.values.get((COMMUNICATION_CYCLE_PERIOD, 0)):
                 raise SdoAbortedError(ABORT_DEVICE_STATE)   # only while 0x1006 is 0

@@ -14,10 +14,12 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ..bus import open_bus
 from ..virtual_bus import attach_inline, data_frame
-from ..cia import (CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS,
-                   MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS, MODE_CST as _MODE_CST, supported_mode_bit)
+from ..cia import (COMMUNICATION_CYCLE_PERIOD, CW_ENABLE_OPERATION as _CW_ENABLE_OPERATION, MAX_SYNC_COUNTER,
+                   MEASURED_DRIVE_OBJECTS as _DRIVE_INPUTS, MEASURED_ENCODER_OBJECTS as _ENCODER_INPUTS,
+                   MODE_CST as _MODE_CST, SYNC_COUNTER_OVERFLOW, supported_mode_bit, valid_sync_counter)
 from ..layout import DRIVE_NODE_IDS, ENCODER_NODE_IDS
 from ..pdo_codec import PdoCodec, build_codec, encode_entry
+from ..tools.dbc import reset_value
 from ..tools.recorder import BusRecorder
 from . import dcf
 from .errors import CommunicationError
@@ -25,8 +27,6 @@ from .errors import CommunicationError
 logger = logging.getLogger(__name__)
 
 _CST_SUPPORTED = supported_mode_bit(_MODE_CST)
-#: Largest synchronous counter overflow value 0x1019 (CiA 301 §7.5.2.20; 1 and 241…255 are reserved).
-MAX_SYNC_COUNTER = 240
 #: Times an SDO request is repeated when no response comes (a frame lost on the bus), as masters do.
 SDO_RETRIES = 3
 
@@ -163,22 +163,23 @@ class ClientConfiguration:
         Raises: CommunicationError: the nodes hold different counters (read from the devices), the files
             give one outside 0, 2…240, or an SDO fails."""
         nodes = self.drives + self.encoders
-        if any(0x1019 not in node.object_dictionary for node in nodes):
+        if any(SYNC_COUNTER_OVERFLOW not in node.object_dictionary for node in nodes):
             wanted = {0}
         elif self._configure_pdos:
-            wanted = {_reset_value(node.object_dictionary[0x1019]) for node in nodes}
+            wanted = {reset_value(node.object_dictionary[SYNC_COUNTER_OVERFLOW]) for node in nodes}
         else:
-            wanted = {self._read(node, 0x1019) for node in nodes}
-        if len(wanted) != 1 or wanted & {1} or max(wanted) > MAX_SYNC_COUNTER:
+            wanted = {self._read(node, SYNC_COUNTER_OVERFLOW) for node in nodes}
+        if len(wanted) != 1 or not valid_sync_counter(next(iter(wanted))):
             raise CommunicationError(f"synchronous counter overflow value 0x1019: the nodes' files or the "
                                      f"devices give {sorted(wanted)}; the SYNC takes one counter for every "
                                      f"node, 0 (none) or 2…{MAX_SYNC_COUNTER}")
         overflow = wanted.pop()
         for node in nodes:
-            if 0x1019 in node.object_dictionary and self._read(node, 0x1019) != overflow:
-                if 0x1006 in node.object_dictionary:
-                    self._write(node, 0x1006, 0)
-                self._write(node, 0x1019, overflow)
+            if SYNC_COUNTER_OVERFLOW in node.object_dictionary and \
+                    self._read(node, SYNC_COUNTER_OVERFLOW) != overflow:
+                if COMMUNICATION_CYCLE_PERIOD in node.object_dictionary:
+                    self._write(node, COMMUNICATION_CYCLE_PERIOD, 0)
+                self._write(node, SYNC_COUNTER_OVERFLOW, overflow)
         self.sync_counter_overflow = overflow
         self._sync_data = [bytes((k,)) for k in range(1, overflow + 1)] if overflow else [b""]
 
@@ -227,11 +228,6 @@ class ClientConfiguration:
                         f"node {node.id}: {', '.join(f'0x{k[0]:04X}' for k in sorted(needed))} not in a "
                         f"synchronous TPDO (transmission type 1)")
         self._expected = len(self._tpdo_plan)
-
-
-def _reset_value(variable):
-    """A file's value of an object: the DCF's ParameterValue, else the EDS' DefaultValue."""
-    return variable.value if variable.value is not None else variable.default
 
 
 def _codec(node, pdo, receive: bool) -> PdoCodec:

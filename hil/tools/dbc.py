@@ -42,7 +42,8 @@ from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
 from ..cia import (COB_ID_EXTENDED, COB_ID_INVALID, MODE_NAMES, MODES_OF_OPERATION, MODES_OF_OPERATION_DISPLAY,
-                   NMT_COMMAND_NAMES, NMT_STATE_NAMES, OBJECT_NAMES, OBJECT_UNITS)
+                   NMT_COMMAND_NAMES, NMT_STATE_NAMES, OBJECT_NAMES, OBJECT_UNITS, SYNC_COUNTER_OVERFLOW,
+                   valid_sync_counter)
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS, SIDES, SYNC_COB_ID, WHEELS
 from ..pdo_codec import PdoMappingError, build_codec, check_entry, decode_entry
 
@@ -91,7 +92,7 @@ def build_database(drive_eds: str | Path | Sequence[str | Path] = DRIVE_EDS,
         values = reset_values(dictionary)
         if sync_cob_id is None:
             sync_cob_id = values.get((0x1005, 0), SYNC_COB_ID) & 0x7FF
-        counters.add(values.get((0x1019, 0), 0))
+        counters.add(values.get((SYNC_COUNTER_OVERFLOW, 0), 0))
         messages += _pdo_messages(dictionary, values, node_id, name, path)
         messages += _service_messages(values, node_id, name)
     overflow = sync_counter(counters)
@@ -151,7 +152,12 @@ def sync_counter(overflows) -> int:
     2…240, else 0 (no counter: a SYNC has one length for every consumer, and 1, 241…255 are reserved)."""
     values = set(overflows)
     value = values.pop() if len(values) == 1 else 0
-    return value if 2 <= value <= 240 else 0
+    return value if valid_sync_counter(value) else 0
+
+
+def reset_value(variable: od.ODVariable):
+    """One object's value after reset: the DCF's ParameterValue, else the EDS' DefaultValue (None: neither)."""
+    return variable.value if variable.value is not None else variable.default
 
 
 def reset_values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], object]:
@@ -159,7 +165,7 @@ def reset_values(dictionary: od.ObjectDictionary) -> dict[tuple[int, int], objec
     values = {}
     for obj in dictionary.values():
         for var in ([obj] if isinstance(obj, od.ODVariable) else obj.values()):
-            value = var.value if var.value is not None else var.default
+            value = reset_value(var)
             if value is not None:
                 values[(var.index, var.subindex)] = value
     return values
