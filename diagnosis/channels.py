@@ -1,6 +1,6 @@
 """The residual channels of a recorded campaign under a given model.
 
-Two kinds of channel, one per (campaign step, quantity):
+Three kinds of channel, one per (campaign step, quantity), and the lifted run's:
 
 * **torque** channels — the generalized torque of the step's excited coordinate: measured
   ``τ̂ = H_kᵀBu`` minus the model ``H_kᵀΘ̂p`` of the paper's (19), filtered exactly as for
@@ -15,6 +15,8 @@ Two kinds of channel, one per (campaign step, quantity):
   side rolls on a circle of radius a about its steering axis, so its encoder angle and the steering
   sensor are tied by the rolling constraint (1): ``β_i − β_i(t₀) = (H₁)_{β_i}(α − α(t₀))``. The model
   predicts a residual of zero up to a constant; wheel radius, backlash and coupling compliance break it.
+* the **lifted** channel — the lifted vehicle's single-axis run, a torque channel of the four wheels'
+  rows (:func:`lifted_channel`), held out and never fitted.
 
 Rows where a drive is at its torque limit (and ``TRACTION_MARGIN`` around them) are not fitted in any
 channel: a wheel driven that hard may spin or skid, and then neither the rolling constraint nor the
@@ -37,7 +39,8 @@ from qomni.ident.campaign import ARC_STEPS, IDENTIFICATION_STEPS, VALIDATION_STE
 from qomni.datasheet import DataSheet
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import (EXCITED, MODE_COORDINATES, VELOCITY_THRESHOLD, StepSignals,
-                                        generalized_signals, model_alpha, step_blocks)
+                                        generalized_signals, lifted_blocks, model_alpha, step_blocks)
+from qomni.ident.single_axis import VELOCITY_THRESHOLD as LIFTED_VELOCITY_THRESHOLD
 from qomni.ident.recording import Signals
 from qomni.ident.symbolic import WHEELS
 
@@ -76,6 +79,7 @@ class StepContext:
         p: (11,) the diagnosed model's parameters, order (18).
         traction_limited: (N,) bool, rows at or near a drive's torque limit (not fitted).
         rolling: the step's redundant rolling constraints (``ROLLING_STEPS`` only, else None).
+        lifted: the lifted vehicle's run (:func:`lifted_channel`): no ground contact, the chassis at rest.
     """
 
     st: StepSignals
@@ -87,6 +91,7 @@ class StepContext:
     keep: np.ndarray
     traction_limited: np.ndarray
     rolling: "RollingConstraints | None" = None
+    lifted: bool = False
 
     @property
     def k(self) -> int:
@@ -194,6 +199,12 @@ class ChannelData:
     def rows(self, full: np.ndarray) -> np.ndarray:
         """The channel's rows of a step-length (N, …) array."""
         return np.asarray(full)[self.context.keep]
+
+    @property
+    def held_out_only(self) -> bool:
+        """Whether the diagnosis never fits the channel's rows and only holds them out (the lifted run's:
+        it reaches the fits only as the measured wheel friction, :class:`.problem.MeasuredBase`)."""
+        return self.context.lifted
 
 
 def _alpha_dot_from_encoders(st: StepSignals, sheet: DataSheet) -> np.ndarray:
@@ -351,6 +362,53 @@ def _misalignment_sliding(ctx: StepContext) -> np.ndarray:
         dA = (kinematics.constraint_matrix(turned, g)[:, :, :3] - rc.A[:, :, :3]) / MISALIGNMENT_STEP
         out[:, :, column] = rc.integrate(np.einsum("nij,nj->ni", dA, st.qd[:, :3]))
     return out
+
+
+#: The lifted run's channel is ``"lifted/beta"``: its step.
+LIFTED_STEP = "lifted"
+
+
+def lifted_channel(signals: Signals, sheet: DataSheet, model: IdentificationResult) -> ChannelData:
+    """The lifted run's torque channel ``"lifted/beta"`` (N m, wheel side): every wheel's
+    i_G u_i − B_w β̈_i − (d_vw β̇_i + d_cw tanh(β̇_i/ε)) under ``model``, the four wheels' rows stacked
+    (``lifted_blocks``), each wheel's rows its own stretch of the channel (the filter's edges cut per
+    wheel), so that the channel holds one row per wheel and instant and the held-out windows take the
+    four wheels together. Its context is lifted (:attr:`StepContext.lifted`): H selects the row's wheel,
+    the chassis is at rest, and hypotheses that need ground contact give it no columns
+    (:attr:`qomni.diagnosis.hypotheses.base.Hypothesis.lifted`).
+
+    The rows are held out, never fitted (:attr:`ChannelData.held_out_only`): a model identified on the
+    vehicle on its wheels holds in d_vw, d_cw whatever resists the wheels' rolling, and the lifted wheels
+    show what the joints alone resist; the fits know the lifted run only as its measured friction
+    (:class:`.problem.MeasuredBase`).
+
+    Args:
+        signals: the lifted run's tracking rows (``qomni.ident.single_axis.tracking_rows``), torque lag
+            applied.
+        sheet: the data sheet; model: the diagnosed model (p (11,), B_w as used)."""
+    st = generalized_signals(signals, sheet, lifted=True)
+    blocks = lifted_blocks(st, sheet)
+    n, wheels = len(st.time), len(blocks)
+    stacked = StepSignals(LIFTED_STEP, 0, np.tile(st.time, wheels),
+                          *(np.tile(a, (wheels, 1))
+                            for a in (st.q, st.qd, st.qdd, st.motor_torque, st.qd_coulomb)),
+                          st.cycle_time, st.omega_g)
+    H = np.zeros((wheels * n, 9, 1))
+    keep = np.zeros(wheels * n, dtype=bool)
+    for i in range(wheels):
+        H[i * n:(i + 1) * n, 5 + i, 0] = 1.0
+        keep[i * n + EDGE_ROWS:(i + 1) * n - EDGE_ROWS] = True
+    limited = np.tile(traction_limited(signals.motor_torque, sheet), wheels)
+    p = np.asarray(model.p, dtype=float)
+    ctx = StepContext(stacked, sheet, p, np.zeros((wheels * n, 3)), H, stacked.qd_coulomb[:, 3:5], keep,
+                      limited, None, lifted=True)
+    theta = np.vstack([b.Theta for b in blocks])[keep]
+    y = np.concatenate([b.tau for b in blocks])[keep] - theta[:, 10] * p[10]
+    velocity = np.concatenate([b.velocity for b in blocks])[keep]
+    acceleration = np.concatenate([st.qdd[:, 5 + i] for i in range(wheels)])[keep]
+    fitted = (np.abs(velocity) > LIFTED_VELOCITY_THRESHOLD) & ~limited[keep]
+    return ChannelData(f"{LIFTED_STEP}/beta", "torque", "N m", 0, y, theta[:, :10], theta[:, :10] @ p[:10],
+                       velocity, acceleration, fitted, ctx)
 
 
 def run_pose(signals: Signals, sheet: DataSheet) -> np.ndarray:

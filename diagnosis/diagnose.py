@@ -30,20 +30,22 @@ from qomni.conventions import P1_NAMES
 from qomni.datasheet import vehicle_differences
 from qomni.ident.result import IdentificationResult
 from qomni.ident.regressor_rows import correlation_lag
-from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, RunDirectoryError,
+from qomni.ident.rundir import (IDENTIFICATION_JSON, METADATA, SIGNALS, SINGLE_AXIS_DIR, RunDirectoryError,
                                check_identification_vehicle, datasheet_from_metadata, file_sha256,
                                load_identification, load_repaired_run, read_json, read_lifted)
 from qomni.ident.campaign import VALIDATION_STEP
 from qomni.ident.setpoint_lag import setpoint_lag
+from qomni.ident.single_axis import read_lifted_recording, tracking_rows
 from qomni.ident.torque_timing import model_lag, shift_torque
 
 from . import evaluation
 from . import fit as fitting
 from . import where as where_
-from .channels import DIAGNOSED_STEPS, LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels
+from .channels import (DIAGNOSED_STEPS, LANE_CHANGE_COORDINATES, LANE_CHANGE_STEERING, ChannelData, channels,
+                       lifted_channel)
 from .paired import PairingError, pair_channels, pairing_shift
 from .hypotheses import Hypothesis, generic, library, plausible
-from .hypotheses.base import RuleRows
+from .hypotheses.base import LIFTED_ABSENT, LIFTED_MODELLED, LIFTED_UNMODELLED, RuleRows, columns_on
 from .setpoint_timing import LAG, report_lag_ruled_out, timing_by_setpoint
 from .problem import (Fit, MeasuredBase, Problem, cached_columns, counted_by_own_correlation, make_problem,
                       own_correlation_rows)
@@ -77,7 +79,7 @@ def combine(fits: list[Fit], extra: Hypothesis | None = None) -> Hypothesis:
         cols = []
         any_col = False
         for h, nl in parts + ([(extra, nonlinear)] if extra is not None else []):
-            c = h.columns(ch, nl)
+            c = columns_on(h, ch, nl)
             if c is None:
                 c = np.zeros((len(ch.y), len(h.parameters)))
             else:
@@ -96,8 +98,11 @@ def combine(fits: list[Fit], extra: Hypothesis | None = None) -> Hypothesis:
         return last.magnitude(theta[-q:], cov[-q:, -q:], nonlinear if extra is not None else parts[-1][1],
                               sheet)
 
+    members = [h for h, _ in parts] + ([extra] if extra is not None else [])
+    lifted = (LIFTED_UNMODELLED if any(h.lifted == LIFTED_UNMODELLED for h in members) else
+              LIFTED_MODELLED if any(h.lifted == LIFTED_MODELLED for h in members) else LIFTED_ABSENT)
     return Hypothesis(label, "", names, columns, grid=extra.grid if extra is not None else (None,),
-                      magnitude=magnitude, physical=lambda theta: plausible(last, theta[-q:]))
+                      magnitude=magnitude, physical=lambda theta: plausible(last, theta[-q:]), lifted=lifted)
 
 
 @dataclass
@@ -610,6 +615,18 @@ def _load_run(run_dir, model: IdentificationResult):
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 
+def _lifted_channels(run_dir, sheet, model: IdentificationResult) -> list[ChannelData]:
+    """[the run's lifted channel (:func:`.channels.lifted_channel`, torque lag as the model's)], or []
+    for a run without a lifted recording.
+
+    Raises: RecordingError: the lifted recording is invalid
+    (:func:`qomni.ident.single_axis.read_lifted_recording`)."""
+    if not (Path(run_dir) / SINGLE_AXIS_DIR / SIGNALS).exists():
+        return []
+    signals, _ = read_lifted_recording(run_dir, model_lag(model))
+    return [lifted_channel(tracking_rows(signals), sheet, model)]
+
+
 def _another_run_of_the_vehicle(run_dir, sheet, data_dir, data_sheet, role: str) -> None:
     """``run_dir`` (the ``role`` run: reference, held-out data) is a run of the data's vehicle other than the
     data: another recording (its ``signals.csv`` is not the data's) with the same data sheet geometry and
@@ -731,6 +748,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             paired_names = [c.name for c in fit_chans if c.paired is not None]
             steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time,
                                              tuple(r for _, r, _ in repeats), shifts)
+    if hold is None:
+        fit_chans = fit_chans + _lifted_channels(data_dir, sheet, model)
     if reference_repeats and not paired_names:
         raise PairingError("reference repeats need a reference run of the data's own campaign to pair with "
                          "(and no second run as held-out data)")
@@ -894,7 +913,7 @@ def _effect_term(problem: Problem, i: int, effects: list) -> np.ndarray | None:
     total = None
     for c in effects:
         q = len(c.hypothesis.parameters)
-        cols = c.hypothesis.columns(ch, c.fit.nonlinear)
+        cols = columns_on(c.hypothesis, ch, c.fit.nonlinear)
         if cols is not None:
             term = cols @ c.fit.theta[-q:]
             total = term if total is None else total + term

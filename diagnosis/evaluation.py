@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .hypotheses.base import Hypothesis
+from .hypotheses.base import LIFTED_UNMODELLED, Hypothesis
 from .problem import Fit, Problem, cached_columns
 
 #: Smallest held-out shrinkage in the affected channel that counts as removing residual.
@@ -42,14 +42,21 @@ def predicted_residual(problem: Problem, i: int, fit: Fit, rows: np.ndarray,
     return r
 
 
+def _describes_lifted(fit: Fit) -> bool:
+    """Whether ``fit``'s effects are described on the lifted wheels, or absent there
+    (:attr:`.hypotheses.base.Hypothesis.lifted`): else the lifted channel cannot compare it."""
+    return fit.hypothesis is None or fit.hypothesis.lifted != LIFTED_UNMODELLED
+
+
 def _held_out(folds, cache: dict | None) -> dict[str, tuple[float, np.ndarray, list[np.ndarray]]]:
     """Channel → (its weight, the windows of its held-out rows, what each fit leaves there), the folds'
-    held-out rows concatenated. ``folds``: (held-out problem, fit, fit, …), every fold with as many fits."""
+    held-out rows concatenated. ``folds``: (held-out problem, fit, fit, …), every fold with as many fits.
+    The lifted channel is left out where a fit holds an effect its columns do not describe there."""
     parts: dict[str, list] = {}
     for fold_problem, *fits in folds:
         for i, ch in enumerate(fold_problem.channels):
             rows = fold_problem.holdout_rows[i]
-            if not rows.any():
+            if not rows.any() or (ch.context.lifted and not all(_describes_lifted(f) for f in fits)):
                 continue
             entry = parts.setdefault(ch.name, [fold_problem.weights[i], [], [[] for _ in fits]])
             entry[1].append(fold_problem.window_id[i][rows])

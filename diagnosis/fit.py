@@ -36,7 +36,7 @@ from qomni.conventions import EPSILON, P1_NAMES
 from qomni.ident.result import IdentificationResult
 
 from .channels import ChannelData
-from .hypotheses.base import Hypothesis, Magnitude, interval_95, plausible
+from .hypotheses.base import Hypothesis, Magnitude, columns_on, interval_95, plausible
 from .evaluation import MIN_SHRINK, Evaluation, added_to_identified, evaluate, predicted_residual
 from .problem import Fit, Problem, cached_columns, swapped
 
@@ -583,7 +583,7 @@ def with_step_levels(h: Hypothesis, names: tuple[str, ...]) -> Hypothesis:
     width = len(h.parameters)
 
     def columns(ch: ChannelData, nonlinear):
-        own = h.columns(ch, nonlinear)
+        own = columns_on(h, ch, nonlinear)
         if ch.kind != "torque" or ch.name not in names:
             return None if own is None else np.hstack([own, np.zeros((len(own), len(names)))])
         out = np.zeros((len(ch.y), width + len(names)))

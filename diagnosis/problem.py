@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .channels import ChannelData
-from .hypotheses.base import Hypothesis
+from .hypotheses.base import Hypothesis, columns_on
 
 #: Length of the alternating fit / held-out time windows, s (≫ the filter's correlation time).
 WINDOW = 1.0
@@ -131,7 +131,9 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
     """The fitting problem and the held-out problem.
 
     Without ``holdout`` the rows of even time windows are fitted and odd ones held out; with it every
-    row of ``channels`` is fitted and ``holdout`` is evaluated. ``base_prior``, ``measured``:
+    row of ``channels`` is fitted and ``holdout`` is evaluated. A channel whose rows are only held out
+    (:attr:`ChannelData.held_out_only`, the lifted run's) has no fit rows; its odd windows are held out
+    (and its even ones in the other fold, :func:`swapped`). ``base_prior``, ``measured``:
     :attr:`Problem.base_prior`, :attr:`Problem.measured`. A channel is weighted by 1/(σ_c √L_c), σ_c the
     RMS of its residual on the fit rows, unless ``weights_of`` (channel name → weight) gives its weight:
     a paired reference run's channels have no residual of their own and take the data's weights.
@@ -141,12 +143,14 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
     for ch in channels:
         w = window_index(ch.time, window)
         wins.append(w)
+        fitted = np.zeros_like(ch.fitted) if ch.held_out_only else ch.fitted
         if holdout is None:
-            fit_rows.append(ch.fitted & (w % 2 == 0))
+            fit_rows.append(fitted & (w % 2 == 0))
             hold_rows.append(ch.fitted & (w % 2 == 1))
         else:
-            fit_rows.append(ch.fitted.copy())
-        sel = fit_rows[-1]
+            fit_rows.append(fitted.copy())
+        # a channel never fitted is weighted by the residual of all its rows
+        sel = ch.fitted if ch.held_out_only else fit_rows[-1]
         if weights_of is not None and ch.name in weights_of:
             weights.append(weights_of[ch.name])
             continue
@@ -163,7 +167,7 @@ def make_problem(channels: list[ChannelData], lag: int, holdout: list[ChannelDat
         return fit, Problem(channels, hold_rows, hold_rows, weights, wins, base_prior, measured, alternate=True)
     by_name = {c.name: i for i, c in enumerate(channels)}
     h_weights = np.array([weights[by_name[c.name]] if c.name in by_name else 0.0 for c in holdout])
-    h_rows = [c.fitted.copy() for c in holdout]
+    h_rows = [c.fitted.copy() for c in holdout]   # (a held-out-only channel of the held-out run: all its rows)
     return fit, Problem(holdout, h_rows, h_rows, h_weights, [window_index(c.time, window) for c in holdout],
                         base_prior, measured)
 
@@ -181,7 +185,9 @@ def restrict(problem: Problem, keep) -> Problem:
 def swapped(fit_problem: Problem, hold_problem: Problem) -> tuple[Problem, Problem] | None:
     """The other fold of an alternate-window split: the held-out windows fitted and the fitted ones held
     out, with the same channels, weights and row counting (cross-fitting: every window is held out
-    once). None where the two problems are not such a split (a second run holds the held-out rows).
+    once). None where the two problems are not such a split (a second run holds the held-out rows). A
+    held-out-only channel (:attr:`ChannelData.held_out_only`) stays unfitted: the other fold holds out its
+    other windows.
 
     Raises:
         ValueError: the problems are an alternate split of different channels."""
@@ -189,9 +195,13 @@ def swapped(fit_problem: Problem, hold_problem: Problem) -> tuple[Problem, Probl
         return None
     if [c.name for c in fit_problem.channels] != [c.name for c in hold_problem.channels]:
         raise ValueError("an alternate-window split holds the same channels in its fit and held-out problems")
-    fit_b = replace(fit_problem, fit_rows=hold_problem.holdout_rows,
+    channels = fit_problem.channels
+    fit_b = replace(fit_problem, fit_rows=[np.zeros_like(r) if c.held_out_only else r
+                                           for c, r in zip(channels, hold_problem.holdout_rows)],
                     holdout_rows=[np.zeros_like(r) for r in hold_problem.holdout_rows])
-    hold_b = replace(hold_problem, fit_rows=fit_problem.fit_rows, holdout_rows=fit_problem.fit_rows)
+    other = [c.fitted & ~h if c.held_out_only else f
+             for c, f, h in zip(channels, fit_problem.fit_rows, hold_problem.holdout_rows)]
+    hold_b = replace(hold_problem, fit_rows=other, holdout_rows=other)
     return fit_b, hold_b
 
 
@@ -212,11 +222,11 @@ class Fit:
 
 
 def cached_columns(h: Hypothesis, nonlinear, ch: ChannelData, cache: dict | None) -> np.ndarray | None:
-    """``h.columns(ch, nonlinear)``, computed once per (hypothesis, non-linear value, channel) in
-    ``cache``."""
+    """``h``'s columns on ``ch`` (:func:`.hypotheses.base.columns_on`), computed once per (hypothesis,
+    non-linear value, channel) in ``cache``."""
     if cache is None:
-        return h.columns(ch, nonlinear)
+        return columns_on(h, ch, nonlinear)
     key = (h.label, nonlinear, id(ch))
     if key not in cache:
-        cache[key] = h.columns(ch, nonlinear)
+        cache[key] = columns_on(h, ch, nonlinear)
     return cache[key]

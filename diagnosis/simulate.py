@@ -62,6 +62,8 @@ def simulate_channel(ch: ChannelData, p: np.ndarray, correction: np.ndarray | No
     per_window = int(round(window / ts))
     errors, ends = [], []
     for start in range(0, len(rows) - per_window, per_window):
+        if rows[start + per_window] - rows[start] != per_window:
+            continue   # the window spans a break in the kept rows (the lifted channel's next wheel)
         s, sd = s_meas[start], sd_meas[start]
         err = []
         for k in range(start, start + per_window):

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qomni.conventions import PARAMETER_NAMES
+from qomni.conventions import PARAMETER_NAMES, WHEELS
 from qomni.datasheet import DataSheet
 
 from . import dynamics, filtering, kinematics, odometry
@@ -65,14 +65,17 @@ def model_alpha(st: StepSignals, geometry) -> np.ndarray:
     return st.q[:, 3:5]
 
 
-def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filtering.OMEGA_G) -> StepSignals:
-    """q, q̇, q̈ and u of one step from its recorded signals, all zero-phase filtered at ω_g."""
+def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filtering.OMEGA_G,
+                        lifted: bool = False) -> StepSignals:
+    """q, q̇, q̈ and u of one step from its recorded signals, all zero-phase filtered at ω_g. ``lifted``: a
+    run of the lifted vehicle, whose chassis stays at rest while the wheels turn (no odometry: the chassis
+    entries of q̇ and q̈ are 0)."""
     g, d = sheet.geometry, sheet.drive
     ts = d.cycle_time
     alpha, alpha_d, alpha_dd = filtering.zero_phase_derivatives(sig.alpha, ts, omega_g)
     beta, beta_d, beta_dd = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, ts, omega_g)
     torque = filtering.zero_phase_lowpass(applied_torque_at_samples(sig.motor_torque), ts, omega_g)
-    velocity = odometry.chassis_velocity(alpha, alpha_d, beta_d, g)
+    velocity = np.zeros((len(sig), 3)) if lifted else odometry.chassis_velocity(alpha, alpha_d, beta_d, g)
     acceleration = np.gradient(velocity, ts, axis=0, edge_order=2)
     n = len(sig)
     q = np.hstack([np.zeros((n, 3)), alpha, beta])
@@ -81,8 +84,8 @@ def generalized_signals(sig: Signals, sheet: DataSheet, omega_g: float = filteri
     fast = coulomb_velocity_cutoff(d)
     alpha_f, alpha_df, _ = filtering.zero_phase_derivatives(sig.alpha, ts, coulomb_steering_cutoff(d))
     beta_df = filtering.zero_phase_derivatives(sig.motor_position / d.i_G, ts, fast)[1]
-    qd_coulomb = np.hstack([odometry.chassis_velocity(alpha_f, alpha_df, beta_df, g), alpha_df,
-                            beta_df])
+    qd_coulomb = np.hstack([np.zeros_like(velocity) if lifted else
+                            odometry.chassis_velocity(alpha_f, alpha_df, beta_df, g), alpha_df, beta_df])
     return StepSignals(str(sig.step[0]), int(sig.k[0]), sig.time, q, qd, qdd, torque, qd_coulomb,
                        ts, omega_g)
 
@@ -151,6 +154,24 @@ def step_blocks(st: StepSignals, sheet: DataSheet, coordinates: tuple[str, ...] 
             continue
         blocks.append(RegressorBlock(theta[:, j, :], tau[:, j], sdot[:, j], f"{st.step}/{name}"))
     return blocks
+
+def lifted_blocks(st: StepSignals, sheet: DataSheet, eps: float = dynamics.EPS) -> list[RegressorBlock]:
+    """Rows Θ and Bu (15)–(17) of the lifted vehicle's wheels, one block per wheel (order fl, rl, fr, rr):
+    with the chassis at rest and no ground contact each wheel is its own coordinate (H selects β_i),
+    B_w β̈_i + d_vw β̇_i + d_cw tanh(β̇_i/ε) = i_G u_i. The Coulomb columns are built and filtered as in
+    :func:`step_blocks`.
+
+    Args:
+        st: the lifted run's generalized signals (:func:`generalized_signals` with ``lifted=True``).
+        sheet: the data sheet (i_G)."""
+    theta = dynamics.regressor(st.q, st.qd, st.qdd)[:, 5:9, :]
+    coulomb = dynamics.regressor(st.q, st.qd_coulomb, np.zeros_like(st.qdd), eps=eps)[:, 5:9, COULOMB_COLUMNS]
+    n, n_w, n_c = coulomb.shape
+    theta[:, :, COULOMB_COLUMNS] = filtering.zero_phase_lowpass(
+        coulomb.reshape(n, n_w * n_c), st.cycle_time, st.omega_g).reshape(n, n_w, n_c)
+    tau = sheet.drive.i_G * st.motor_torque
+    return [RegressorBlock(theta[:, i, :], tau[:, i], st.qd[:, 5 + i], f"{st.step}/beta_{wheel}")
+            for i, wheel in enumerate(WHEELS)]
 
 #: The coordinate each identification step excites (section 6.2); the held side of a steering step
 #: stands still in stiction and contributes no rows.

@@ -37,6 +37,8 @@ from .rundir import METADATA, SIGNALS, SINGLE_AXIS_DIR, SINGLE_AXIS_JSON, write_
 from .torque_timing import shift_torque
 
 STEP = "single_axis"
+#: |β̇| (rad/s) below which the lifted fit drops a row: static friction is indeterminate there.
+VELOCITY_THRESHOLD = 0.5
 
 
 def plan_single_axis(duration: float = 8.0, beta_max: float = 40.0, beta_dot_max: float = 12.0,
@@ -130,15 +132,12 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: floa
     is more corrupt than single glitches."""
     run_dir = Path(run_dir)
     path = run_dir / SINGLE_AXIS_DIR / SIGNALS
-    sig = read_signals(path)
-    check_drives(sig, str(path))
-    sig, spikes = repair_spikes(sig, str(path))
-    sig = shift_torque(sig, torque_lag)
+    sig, spikes = read_lifted_recording(run_dir, torque_lag)
     d = sheet.drive
-    tracking = sig.select(sig.step == STEP) if (sig.step == BREAKAWAY_STEP).any() else sig
+    tracking = tracking_rows(sig)
     _, beta_dot, beta_ddot = filtering.zero_phase_derivatives(tracking.motor_position / d.i_G, d.cycle_time)
     torque = filtering.zero_phase_lowpass(applied_torque_at_samples(tracking.motor_torque), d.cycle_time)
-    result = estimate_single_axis(beta_dot, beta_ddot, d.i_G * torque, velocity_threshold=0.5,
+    result = estimate_single_axis(beta_dot, beta_ddot, d.i_G * torque, velocity_threshold=VELOCITY_THRESHOLD,
                                   correlation_lag=correlation_lag(d.cycle_time))
     data = result.to_json_dict()
     try:
@@ -154,6 +153,27 @@ def identify_single_axis(run_dir: str | Path, sheet: DataSheet, torque_lag: floa
     data["datasheet"] = {"geometry": asdict(sheet.geometry), "drive": asdict(sheet.drive)}
     write_json(run_dir / SINGLE_AXIS_JSON, data)
     return result
+
+
+def read_lifted_recording(run_dir: str | Path, torque_lag: float = 0.0):
+    """The lifted run's recording ``run_dir/single_axis/signals.csv`` (tracking and breakaway steps),
+    checked as a campaign's is (:func:`.plausibility.check_drives`), its isolated glitches repaired
+    (:mod:`.spikes`) and its torque shifted by the drives' report lag ``torque_lag`` (s,
+    :mod:`.torque_timing`): (signals, the glitch report).
+
+    Raises: RecordingError: the recording is invalid, a drive's signals are dead or disagree, or a column
+    is more corrupt than single glitches."""
+    path = Path(run_dir) / SINGLE_AXIS_DIR / SIGNALS
+    sig = read_signals(path)
+    check_drives(sig, str(path))
+    sig, spikes = repair_spikes(sig, str(path))
+    return shift_torque(sig, torque_lag), spikes
+
+
+def tracking_rows(sig):
+    """The rows of a lifted recording where the wheels track their Fourier trajectories (step
+    :data:`STEP`; all rows of a recording without breakaway ramps)."""
+    return sig.select(sig.step == STEP) if (sig.step == BREAKAWAY_STEP).any() else sig
 
 
 # --- estimation (lifted wheels) ----------------------------------------------------------------------

@@ -23,7 +23,7 @@ def _channel(name, rng, planted=0.0, k=3):
     residual = planted * phi + rng.normal(size=N_ROWS)   # noise σ = 1 per row
     return NS(name=name, kind="torque", base=base, residual=residual, nuisance=np.zeros((N_ROWS, 0)),
               fitted=np.ones(N_ROWS, bool), time=np.arange(N_ROWS) * 0.004, phi=phi,
-              context=NS(k=k))
+              context=NS(k=k, lifted=False), held_out_only=False)
 
 
 def _problem(channels):
@@ -221,7 +221,8 @@ def test_a_hypothesis_whose_torque_column_the_base_spans_is_separable_through_it
     torque = _channel("straight/x_ch", rng)
     kinematic = NS(name="steer_left/kinematic_fl", kind="kinematic", base=np.zeros((N_ROWS, 0)),
                    residual=rng.normal(size=N_ROWS), nuisance=np.zeros((N_ROWS, 0)),
-                   fitted=np.ones(N_ROWS, bool), time=torque.time, context=NS(k=1))
+                   fitted=np.ones(N_ROWS, bool), time=torque.time, context=NS(k=1, lifted=False),
+                   held_out_only=False)
     mix = torque.base[:, 6] + 0.5 * torque.base[:, 7]
 
     def columns(ch, _):
@@ -575,7 +576,8 @@ def test_a_smooth_column_on_a_wandering_residual_is_calibrated_only_counted_by_i
         rng = np.random.default_rng(100 + seed)
         ch = NS(name="c", kind="torque", base=rng.normal(size=(n, 10)), residual=_ar1(rng, n, 0.97),
                 nuisance=np.zeros((n, 0)), fitted=np.ones(n, bool), time=t,
-                phi=np.sin(2 * np.pi * 0.4 * t + rng.uniform(0, 2 * np.pi)), context=NS(k=2))
+                phi=np.sin(2 * np.pi * 0.4 * t + rng.uniform(0, 2 * np.pi)), context=NS(k=2, lifted=False),
+                held_out_only=False)
         problem = Problem([ch], [np.ones(n, bool)], [np.zeros(n, bool)], np.ones(1), [np.zeros(n, int)])
         own = counted_by_own_correlation(problem, "c", own_correlation_rows(ch, lag, ch.phi[:, None]), lag)
         for key, pb in (("L", problem), ("own", own)):
@@ -596,7 +598,7 @@ def _offset_channel(name, rng, peak=0.0, offset=30.0):
     residual = offset * np.tanh(v / 0.01) + peak * phi + rng.normal(size=N_ROWS)
     return NS(name=name, kind="torque", base=rng.normal(size=(N_ROWS, 10)), residual=residual, y=residual,
               velocity=v, nuisance=np.zeros((N_ROWS, 0)), fitted=np.ones(N_ROWS, bool), time=t, phi=phi,
-              context=NS(k=3))
+              context=NS(k=3, lifted=False), held_out_only=False)
 
 
 def _raw_weighted(channels):
@@ -696,7 +698,7 @@ def test_beside_accepted_effects_only_the_torque_channels_are_weighted_again():
 
     rng = np.random.default_rng(41)
     torque, kinematic = _channel("rotation/gamma_ch", rng), _channel("rotation/rolling_1", rng)
-    kinematic.kind, kinematic.context = "rolling", NS(k=3, st=NS(cycle_time=0.004))
+    kinematic.kind, kinematic.context = "rolling", NS(k=3, st=NS(cycle_time=0.004), lifted=False)
     for ch in (torque, kinematic):
         ch.a = rng.normal(size=N_ROWS)
         ch.residual = 20.0 * ch.a + rng.normal(size=N_ROWS)
@@ -821,3 +823,73 @@ def test_the_first_effect_needs_its_shares_of_residual_removed_above_0():
     assert _first_effect([stick_slip, true_one, weak]) is true_one
     assert "not above 0: not named first" in stick_slip.notes[0] and not true_one.notes
     assert _first_effect([cand(True, (-0.06, 0.47)), weak]) is None
+
+
+def _lifted_and_ground(rng, lifted_gap: float):
+    """A ground channel that absorbed a rolling-resistance-like effect into d_cw (its column is d_cw's, the
+    residual has none of it left) and the lifted wheels' channel, where the model's d_cw is ``lifted_gap``
+    too high (nothing of the ground's there); 4 s of rows each, alternate 1 s windows."""
+    ground = _channel("straight/x_ch", rng)
+    ground.phi = ground.base[:, 9].copy()
+    ground.residual = 0.02 * rng.normal(size=N_ROWS)
+    lifted = _channel("lifted/beta", rng)
+    lifted.residual = -lifted_gap * lifted.base[:, 9] + 0.05 * rng.normal(size=N_ROWS)
+    lifted.held_out_only, lifted.context.lifted = True, True
+    for ch in (ground, lifted):
+        ch.time = np.arange(N_ROWS) * 0.01
+    return ground, lifted
+
+
+def test_a_held_out_only_channel_is_never_fitted_and_each_of_its_rows_is_held_out_in_one_fold():
+    from qomni.diagnosis.problem import make_problem, swapped
+
+    ground, lifted = _lifted_and_ground(np.random.default_rng(4), 2.5)
+    fit_a, hold_a = make_problem([ground, lifted], 1)
+    fit_b, hold_b = swapped(fit_a, hold_a)
+    assert not fit_a.fit_rows[1].any() and not fit_b.fit_rows[1].any()
+    assert np.array_equal(hold_a.holdout_rows[1] ^ hold_b.holdout_rows[1], lifted.fitted)
+    assert not (hold_a.holdout_rows[1] & hold_b.holdout_rows[1]).any()
+    assert fit_a.fit_rows[0].any() and np.array_equal(fit_b.fit_rows[0], hold_a.holdout_rows[0])
+    # weighted by what the model leaves on all its rows, as a fitted channel by its fit rows
+    sigma = np.sqrt(np.mean(lifted.residual ** 2))
+    assert fit_a.weights[1] == pytest.approx(1 / sigma)
+    # every row a fit row (the rule rows' problem): still none of the lifted channel's
+    every, _ = make_problem([ground, lifted], 1, [ground, lifted])
+    assert every.fit_rows[0].all() and not every.fit_rows[1].any()
+
+
+def test_an_effect_the_base_absorbed_on_the_ground_shrinks_the_lifted_wheels_held_out_residual():
+    # Rolling resistance in a model identified on the vehicle on its wheels: the straight run is fitted
+    # (d_cw took it), the lifted wheels are not; the lifted measurement holds d_cw at the joints' 2.5
+    # lower. The gap is where the model is wrong: on the lifted wheels, which the effect does not touch.
+    from qomni.diagnosis import evaluation
+    from qomni.diagnosis.problem import MeasuredBase, make_problem
+
+    ground, lifted = _lifted_and_ground(np.random.default_rng(5), 2.5)
+    fit_p, hold_p = make_problem([ground, lifted], 1, base_prior=False,
+                                 measured=MeasuredBase((9,), np.array([-2.5]), np.array([0.05])))
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    ext = fitting.solve(fit_p, MODEL, LEVEL, None, 1)
+    assert abs(base.delta_p[9]) < 0.05 and ext.delta_p[9] == pytest.approx(-2.5, abs=0.05)
+    ev = evaluation.evaluate(hold_p, base, ext)
+    assert ev.affected == "lifted/beta" and ev.shrink_affected > 0.9 and ev.shrink_affected_ci[0] > 0.9
+    # the same rows leave the fits as they were: the lifted channel is only held out
+    alone, _ = make_problem([ground], 1, base_prior=False, measured=fit_p.measured)
+    assert np.allclose(fitting.solve(alone, MODEL, LEVEL, None, 1).theta, ext.theta)
+
+
+def test_the_lifted_channel_is_left_out_of_comparisons_of_an_effect_its_columns_do_not_describe_there():
+    from dataclasses import replace as replaced
+
+    from qomni.diagnosis import evaluation
+    from qomni.diagnosis.hypotheses.base import LIFTED_MODELLED, LIFTED_UNMODELLED
+    from qomni.diagnosis.problem import MeasuredBase, make_problem
+
+    ground, lifted = _lifted_and_ground(np.random.default_rng(6), 2.5)
+    fit_p, hold_p = make_problem([ground, lifted], 1, base_prior=False,
+                                 measured=MeasuredBase((9,), np.array([-2.5]), np.array([0.05])))
+    base = fitting.solve(fit_p, MODEL, None, None, 1)
+    for lifted_form, compared in ((LIFTED_UNMODELLED, False), (LIFTED_MODELLED, True)):
+        h = replaced(LEVEL, lifted=lifted_form)
+        ev = evaluation.evaluate(hold_p, base, fitting.solve(fit_p, MODEL, h, None, 1))
+        assert ("lifted/beta" in [c.name for c in ev.channels]) is compared

@@ -131,3 +131,53 @@ def test_a_fit_without_a_variance_is_taken_alone_rather_than_dividing_by_zero():
     assert combined_factor(c, _lifted({"rl": 0.88}), "rl") == (-0.12, 0.0)
     resolve_drive([c], _rows(_lifted({"rl": 0.88})))
     assert c.significant
+
+
+def _lifted_run(sheet, B_w=0.12, d_vw=0.73, d_cw=3.95, seconds=8.0):
+    """Signals of the lifted wheels, each on its own sine, driven by exactly the torque that (19) with the
+    chassis at rest asks for: i_G u_i = B_w β̈_i + d_vw β̇_i + d_cw tanh(β̇_i/ε)."""
+    from qomni.conventions import EPSILON
+    from qomni.ident.recording import Signals
+
+    ts, i_G = sheet.drive.cycle_time, sheet.drive.i_G
+    t = np.arange(1, int(seconds / ts) + 1) * ts
+    w = np.array([2.1, 2.9, 3.7, 4.3])
+    beta = 3.0 * np.sin(w * t[:, None])
+    beta_d, beta_dd = 3.0 * w * np.cos(w * t[:, None]), -3.0 * w**2 * np.sin(w * t[:, None])
+    tau = B_w * beta_dd + d_vw * beta_d + d_cw * np.tanh(beta_d / EPSILON)
+    n = len(t)
+    # the torque actual of SYNC j acts over the following cycle: reported at the cycle's mid-point
+    u = np.column_stack([np.interp(t + ts / 2, t, tau[:, i]) for i in range(4)]) / i_G
+    return Signals(t, np.full(n, "single_axis"), np.zeros(n, int), np.zeros((n, 2)), i_G * beta,
+                   i_G * beta_d, u, u)
+
+
+def test_the_lifted_channel_is_what_the_model_gets_wrong_about_the_lifted_wheels_and_nothing_else():
+    from qomni.datasheet import DataSheet
+    from qomni.diagnosis.channels import EDGE_ROWS, lifted_channel
+    from qomni.diagnosis.hypotheses.base import columns_on
+    from qomni.diagnosis.hypotheses.rolling_resistance import ROLLING_RESISTANCE
+    from qomni.diagnosis.hypotheses.torque_constant_error import TORQUE_CONSTANT
+
+    sheet = DataSheet.load()
+    signals = _lifted_run(sheet)
+    p = np.zeros(11)
+    p[8], p[9], p[10] = 0.73, 3.95, 0.12           # d_vw, d_cw, B_w (order (18))
+    exact = lifted_channel(signals, sheet, NS(p=p))
+    assert exact.held_out_only and exact.name == "lifted/beta"
+    moving = exact.fitted
+    assert moving.mean() > 0.9
+    assert np.sqrt(np.mean(exact.residual[moving] ** 2)) < 0.02 * 3.95
+    p_high = p.copy()
+    p_high[9] += 1.5                              # the ground's share taken into d_cw
+    high = lifted_channel(signals, sheet, NS(p=p_high))
+    assert np.allclose(high.residual[moving] - exact.residual[moving], -1.5 * high.base[moving, 9])
+    assert np.sqrt(np.mean(high.residual[moving] ** 2)) > 1.4
+    # no ground under the wheels: no rolling resistance; drive j's torque acts on wheel j's rows alone
+    assert columns_on(ROLLING_RESISTANCE, high, None) is None
+    rows_per_wheel = len(signals) - 2 * EDGE_ROWS
+    for j, h in enumerate(TORQUE_CONSTANT):
+        col = columns_on(h, high, None)[:, 0]
+        on = np.zeros(len(col), bool)
+        on[j * rows_per_wheel:(j + 1) * rows_per_wheel] = True
+        assert np.abs(col[on]).max() > 1.0 and not col[~on].any()

@@ -13,7 +13,9 @@ pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_wheels_friction(tmp_path):
     """A same-run identification puts rolling resistance into d_cw and the twin rolls with it: the
     residuals alone cannot tell it. The campaign's single-axis run measured the wheels lifted, without
-    it; holding d_cw by that measurement, the diagnosis names the rolling resistance with its c_rr."""
+    it; holding d_cw by that measurement, the diagnosis names the rolling resistance with its c_rr. The
+    gap it closes is on the lifted wheels, which the model as identified brakes by c_rr m_ch g r / 4 too
+    much each: the lifted run is held out, and the effect removes most of its residual."""
     from qomni.blind_suite import run_campaign
 
     run = tmp_path / "rolling"
@@ -22,6 +24,7 @@ def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_whe
     assert [a["name"] for a in gap["accepted"]] == ["rolling_resistance"], gap["verdict"]
     c_rr = gap["accepted"][0]
     assert c_rr["ci"][0] <= 0.008 <= c_rr["ci"][1] and c_rr["magnitude"] == pytest.approx(0.008, rel=0.15)
+    assert c_rr["affected_channel"] == "lifted/beta" and c_rr["holdout_shrink_ci"][0] > 0.5, c_rr
     assert set(gap["lifted_wheel_friction"]) == {"d_vw", "d_cw"}
     assert "lifted vehicle" in gap["base_parameters"]
 

@@ -56,7 +56,8 @@ def _channel(k, theta, q, u):
     """The first coordinate's torque channel as the hypotheses read it (every row kept)."""
     st = NS(motor_torque=u, time=np.arange(len(q)) * TS)
     return NS(kind="torque", base=theta[:, 0, :10], index=0, rows=lambda x: x,
-              context=NS(p=P, st=st, H=kinematics.H(k, q[:, 3:5], G), sheet=NS(drive=NS(i_G=I_G))))
+              context=NS(p=P, st=st, H=kinematics.H(k, q[:, 3:5], G), sheet=NS(drive=NS(i_G=I_G)), lifted=False),
+              held_out_only=False)
 
 
 @pytest.mark.parametrize("k", [1, 3, 4])

@@ -6,7 +6,8 @@ import math
 import numpy as np
 
 from ..channels import ChannelData
-from .base import Hypothesis, Magnitude, _delayed, _input_torque, _project, _torque_only, interval_95
+from .base import (LIFTED_MODELLED, Hypothesis, Magnitude, _delayed, _input_torque, _project, _torque_only,
+                   interval_95)
 
 
 DELAY_STEPS = tuple(range(1, 13))  # cycles of T_s
@@ -40,7 +41,7 @@ def shift_magnitude(quantity: str):
 ACTUATOR_DELAY = Hypothesis("actuator_delay", "", ("gain",), shift_columns(+1), DELAY_STEPS,
                             magnitude=shift_magnitude("delay commanded → applied torque"),
                             physical=lambda t: SHIFT_GAIN_RANGE[0] < t[0] < SHIFT_GAIN_RANGE[1],
-                            nonlinear_unit="cycles")
+                            nonlinear_unit="cycles", lifted=LIFTED_MODELLED)
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (ACTUATOR_DELAY,)

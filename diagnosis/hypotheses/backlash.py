@@ -41,7 +41,7 @@ from qomni.ident import dynamics, filtering, odometry
 from qomni.ident.regressor_rows import COULOMB_COLUMNS, model_alpha
 
 from ..channels import ChannelData
-from .base import Hypothesis, _delayed, _linear_magnitude, _rolling
+from .base import LIFTED_UNMODELLED, Hypothesis, _delayed, _linear_magnitude, _rolling
 
 
 BACKLASH_TORQUE_SCALE = 0.05  # N m motor side: torque below which the gear floats in its gap
@@ -100,7 +100,8 @@ def _backlash_columns(ch: ChannelData, transition):
 BACKLASH = Hypothesis("backlash", "", ("gap",), _backlash_columns, TRANSITION,
                       magnitude=_linear_magnitude(0, "rad", "gear backlash (wheel side)"),
                       physical=lambda t: t[0] > 0, relevant=3e-4,
-                      nonlinear_unit="(crossing time [SYNC cycles], turn-over width [N m motor side])")
+                      nonlinear_unit="(crossing time [SYNC cycles], turn-over width [N m motor side])",
+                      lifted=LIFTED_UNMODELLED)
 
 
 #: Tyre/floor friction coefficient the scrub of a toed wheel is taken at (dry rubber on concrete, the

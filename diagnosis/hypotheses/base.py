@@ -53,6 +53,12 @@ class Hypothesis:
         resolve: a rule between this hypothesis' variants, ``(candidates, rows: RuleRows) -> None``, run
             once on the ranked candidates; it may change their ``significant`` flags and notes (e.g.
             which joints low-speed friction is placed in). Variants of one effect share the rule.
+        lifted: how the effect acts on the lifted vehicle's wheels (the diagnosis' lifted channel,
+            :func:`qomni.diagnosis.channels.lifted_channel`): :data:`LIFTED_ABSENT` it needs ground
+            contact or a moving chassis, and the channel gets no columns; :data:`LIFTED_MODELLED` it acts
+            through the drives or the wheel joints and ``columns`` gives its lifted rows (the generalized
+            force on the wheel coordinates, as on the ground); :data:`LIFTED_UNMODELLED` it acts there but
+            its columns do not describe it, and held-out comparisons leave the channel out.
     """
 
     name: str
@@ -69,6 +75,7 @@ class Hypothesis:
     size: Callable[[np.ndarray], float] = lambda theta: abs(float(theta[0]))
     folds_into: Mapping[str, tuple[str, Callable[[np.ndarray, float], float]]] = field(default_factory=dict)
     resolve: Callable | None = None
+    lifted: str = "absent"
 
     @property
     def label(self) -> str:
@@ -81,6 +88,25 @@ class Hypothesis:
         if self.grid == (None,):
             return 0
         return len(self.grid[0]) if isinstance(self.grid[0], tuple) else 1
+
+
+#: :attr:`Hypothesis.lifted`: the effect needs ground contact or a moving chassis (rolling resistance, a
+#: tyre's slip, an incline, a payload): absent on lifted wheels.
+LIFTED_ABSENT = "absent"
+#: :attr:`Hypothesis.lifted`: the effect acts through the drives or the wheel joints, and its columns give
+#: the lifted rows (a delay, a torque constant, wheel-joint friction).
+LIFTED_MODELLED = "modelled"
+#: :attr:`Hypothesis.lifted`: the effect acts on lifted wheels, but its columns are built for the
+#: vehicle on its wheels (a backlash's transients through the mode's dynamics).
+LIFTED_UNMODELLED = "unmodelled"
+
+
+def columns_on(h: Hypothesis, ch: ChannelData, nonlinear) -> np.ndarray | None:
+    """``h.columns(ch, nonlinear)``, None on a lifted channel where the effect is not modelled there
+    (:attr:`Hypothesis.lifted`): the one entry to a hypothesis' columns."""
+    if ch.context.lifted and h.lifted != LIFTED_MODELLED:
+        return None
+    return h.columns(ch, nonlinear)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from scipy import stats
 from qomni.conventions import EPSILON as EPS_SIGN
 
 from ..channels import ChannelData, held_off_sides, steering_offset
-from .base import Hypothesis, RuleRows, _linear_magnitude, _project, _torque_only
+from .base import LIFTED_MODELLED, Hypothesis, RuleRows, _linear_magnitude, _project, _torque_only
 
 
 #: rad/s, joint side: below this speed a joint is taken as sticking. Its friction then holds against the
@@ -474,18 +474,20 @@ def resolve_joints(candidates: list, rows: RuleRows) -> None:
 STRIBECK_WHEELS = Hypothesis(
     "stribeck", "joints=wheels", ("breakaway_excess",), _stribeck_wheel_columns, STRIBECK_VELOCITIES,
     magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (wheel joints)"),
-    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints,
+    lifted=LIFTED_MODELLED)
 STRIBECK_STEERING = Hypothesis(
     "stribeck", "joints=steering", ("breakaway_excess",), _stribeck_steering_columns,
     STRIBECK_VELOCITIES, magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (steering joints)"),
-    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints)
+    physical=lambda t: t[0] > 0, nonlinear_unit="rad/s (Stribeck velocity)", resolve=resolve_joints,
+    lifted=LIFTED_MODELLED)
 
 STRIBECK_BOTH = Hypothesis(
     "stribeck", "joints=both", ("breakaway_excess_wheels", "breakaway_excess_steering"),
     _stribeck_both_columns, STRIBECK_VELOCITIES,
     magnitude=_linear_magnitude(0, "-", "breakaway/Coulomb − 1 (wheel joints; the steering joints' in the notes)"),
     physical=lambda t: t[0] > 0 and t[1] > 0, nonlinear_unit="rad/s (Stribeck velocity)",
-    resolve=resolve_joints)
+    resolve=resolve_joints, lifted=LIFTED_MODELLED)
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (STRIBECK_WHEELS, STRIBECK_STEERING, STRIBECK_BOTH)

@@ -16,7 +16,7 @@ from scipy import stats
 from qomni.conventions import WHEELS
 
 from ..channels import ChannelData
-from .base import Hypothesis, RuleRows, _input_torque, _linear_magnitude, _project, _torque_only
+from .base import LIFTED_MODELLED, Hypothesis, RuleRows, _input_torque, _linear_magnitude, _project, _torque_only
 
 
 def _variant(wheel: str) -> str:
@@ -179,7 +179,7 @@ RELEVANT_FACTOR = 0.01
 TORQUE_CONSTANT = tuple(
     Hypothesis("torque_constant_error", _variant(w), ("factor_minus_one",), _torque_constant(j),
                magnitude=_linear_magnitude(0, "-", f"torque-constant factor − 1 of drive {w}"),
-               relevant=RELEVANT_FACTOR, resolve=resolve_drive)
+               relevant=RELEVANT_FACTOR, resolve=resolve_drive, lifted=LIFTED_MODELLED)
     for j, w in enumerate(WHEELS))
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).

@@ -4,7 +4,7 @@ late); T_r profiled. The mirror image of an actuator delay: the residual leads t
 from __future__ import annotations
 
 from .actuator_delay import SHIFT_GAIN_RANGE, shift_columns, shift_magnitude
-from .base import Hypothesis
+from .base import LIFTED_MODELLED, Hypothesis
 
 LAG_STEPS = tuple(range(1, 7))  # cycles of T_s
 #: The shortest lag the hypothesis names, in cycles of T_s.
@@ -13,7 +13,7 @@ SHORTEST_CYCLES = SHIFT_GAIN_RANGE[0] * LAG_STEPS[0]
 TORQUE_REPORT_LAG = Hypothesis("torque_report_lag", "", ("gain",), shift_columns(-1), LAG_STEPS,
                                magnitude=shift_magnitude("lag of the reported torque (0x6077) behind the applied"),
                                physical=lambda t: SHIFT_GAIN_RANGE[0] < t[0] < SHIFT_GAIN_RANGE[1],
-                               nonlinear_unit="cycles")
+                               nonlinear_unit="cycles", lifted=LIFTED_MODELLED)
 
 #: The hypotheses this module adds to the library (:data:`qomni.diagnosis.hypotheses.LIBRARY`).
 HYPOTHESES = (TORQUE_REPORT_LAG,)
