@@ -51,7 +51,9 @@ def simulate_channel(ch: ChannelData, p: np.ndarray, correction: np.ndarray | No
     ctx = ch.context
     rows = np.flatnonzero(ctx.keep)
     ts = ctx.st.cycle_time
-    tau = ch.y.copy()
+    # y is τ̂ − Θ̂₂p₂: B_w's term goes back into the input, since m holds B_w
+    wheel_inertia = dynamics.regressor(ctx.st.q[rows], ctx.st.qd[rows], ctx.st.qdd[rows])[:, :, 10]
+    tau = ch.y + p[10] * np.einsum("ni,ni->n", ctx.H[rows, :, ch.index], wheel_inertia)
     if correction is not None:
         tau = tau - correction
     sd_meas = ch.velocity

@@ -181,3 +181,21 @@ def test_the_lifted_channel_is_what_the_model_gets_wrong_about_the_lifted_wheels
         on = np.zeros(len(col), bool)
         on[j * rows_per_wheel:(j + 1) * rows_per_wheel] = True
         assert np.abs(col[on]).max() > 1.0 and not col[~on].any()
+
+
+def test_the_lifted_wheels_are_simulated_forward_one_wheel_at_a_time():
+    from qomni.datasheet import DataSheet
+    from qomni.diagnosis.channels import lifted_channel
+    from qomni.diagnosis.simulate import simulate_channel
+
+    sheet = DataSheet.load()
+    p = np.zeros(11)
+    p[8], p[9], p[10] = 0.73, 3.95, 0.12
+    ch = lifted_channel(_lifted_run(sheet), sheet, NS(p=p))
+    exact = simulate_channel(ch, p)
+    # 1 s windows within each wheel's 7.76 s of kept rows: 7 a wheel, none across two wheels' rows
+    assert exact["windows"] == 4 * 7
+    p_high = p.copy()
+    p_high[9] += 1.5
+    wrong = simulate_channel(ch, p_high)
+    assert exact["rms"] < 0.2 * wrong["rms"] and exact["unit"] == "rad"

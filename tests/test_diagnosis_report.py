@@ -30,7 +30,7 @@ def _channel(name: str, step: str, residual: np.ndarray, offset: float) -> Chann
     st = SimpleNamespace(time=t, cycle_time=0.004, q=np.zeros((n, 5)),
                          motor_torque=np.zeros((n, 4)))
     ctx = SimpleNamespace(st=st, keep=np.ones(n, bool), step=step, k=3,
-                          traction_limited=np.zeros(n, bool))
+                          traction_limited=np.zeros(n, bool), lifted=False)
     v = np.sin(2 * np.pi * 0.5 * t) + offset
     y = residual + 2.0 * v
     return ChannelData(name, "torque", "N m", 0, y, np.zeros((n, 10)), 2.0 * v, v,
