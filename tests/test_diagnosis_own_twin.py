@@ -25,6 +25,7 @@ def test_rolling_resistance_is_named_against_the_runs_own_twin_by_the_lifted_whe
     c_rr = gap["accepted"][0]
     assert c_rr["ci"][0] <= 0.008 <= c_rr["ci"][1] and c_rr["magnitude"] == pytest.approx(0.008, rel=0.15)
     assert c_rr["affected_channel"] == "lifted/beta" and c_rr["holdout_shrink_ci"][0] > 0.5, c_rr
+    assert gap["model_identified_on_data"] and "lifted/beta" in gap["model_holdout_rms"]
     assert set(gap["lifted_wheel_friction"]) == {"d_vw", "d_cw"}
     assert "lifted vehicle" in gap["base_parameters"]
 
