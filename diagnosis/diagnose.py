@@ -615,17 +615,17 @@ def _load_run(run_dir, model: IdentificationResult):
     return shift_torque(signals, model_lag(model)), sheet, {**meta, "spikes": spikes.to_json_dict()}
 
 
-def _lifted_channels(run_dir, sheet, model: IdentificationResult) -> list[ChannelData]:
+def _lifted_channels(run_dir, sheet, model: IdentificationResult, model_from_data: bool) -> list[ChannelData]:
     """[the run's lifted channel (:func:`.channels.lifted_channel`, torque lag as the model's)], or []
-    for a run without a lifted recording. Held out where the model was identified on the run: there the
-    identification put into d_vw, d_cw whatever resists the wheels on the ground, and only the lifted
-    wheels show it. A model of another run is not fitted to the ground's share, whose gap the ground's
-    channels then show; there the lifted channel would credit any effect whose fit moves d_cw towards the
-    lifted wheels (docs/diagnosis.md, Where: the lifted channel).
+    for a run without a lifted recording or a model not identified on the run (``model_from_data``
+    false). A model identified on the run put into d_vw, d_cw whatever resists the wheels on the ground,
+    and only the lifted wheels show it. A model of another run is not fitted to the ground's share, whose
+    gap the ground's channels then show; there the lifted channel would credit any effect whose fit moves
+    d_cw towards the lifted wheels (docs/diagnosis.md, Where: the lifted channel).
 
     Raises: RecordingError: the lifted recording is invalid
     (:func:`qomni.ident.single_axis.read_lifted_recording`)."""
-    if not (Path(run_dir) / SINGLE_AXIS_DIR / SIGNALS).exists():
+    if not model_from_data or not (Path(run_dir) / SINGLE_AXIS_DIR / SIGNALS).exists():
         return []
     signals, _ = read_lifted_recording(run_dir, model_lag(model))
     return [lifted_channel(tracking_rows(signals), sheet, model)]
@@ -752,8 +752,8 @@ def diagnose(model: IdentificationResult, data_dir: str | Path, holdout_dir: str
             paired_names = [c.name for c in fit_chans if c.paired is not None]
             steer, steer_ref = pair_channels(steer, steer_ref, sheet.drive.cycle_time,
                                              tuple(r for _, r, _ in repeats), shifts)
-    if hold is None and model_from_data:
-        fit_chans = fit_chans + _lifted_channels(data_dir, sheet, model)
+    if hold is None:
+        fit_chans = fit_chans + _lifted_channels(data_dir, sheet, model, model_from_data)
     if reference_repeats and not paired_names:
         raise PairingError("reference repeats need a reference run of the data's own campaign to pair with "
                          "(and no second run as held-out data)")

@@ -14,6 +14,17 @@ from qomni.ident import filtering
 from ..channels import ChannelData
 
 
+#: :attr:`Hypothesis.lifted`: the effect needs ground contact or a moving chassis (rolling resistance, a
+#: tyre's slip, an incline, a payload): absent on lifted wheels.
+LIFTED_ABSENT = "absent"
+#: :attr:`Hypothesis.lifted`: the effect acts through the drives or the wheel joints, and its columns give
+#: the lifted rows (a delay, a torque constant, wheel-joint friction).
+LIFTED_MODELLED = "modelled"
+#: :attr:`Hypothesis.lifted`: the effect acts on lifted wheels, but its columns are built for the
+#: vehicle on its wheels (a backlash's transients through the mode's dynamics).
+LIFTED_UNMODELLED = "unmodelled"
+
+
 @dataclass(frozen=True)
 class Magnitude:
     """A hypothesis' physical size: value, 95 % interval, unit and what it is."""
@@ -75,7 +86,7 @@ class Hypothesis:
     size: Callable[[np.ndarray], float] = lambda theta: abs(float(theta[0]))
     folds_into: Mapping[str, tuple[str, Callable[[np.ndarray, float], float]]] = field(default_factory=dict)
     resolve: Callable | None = None
-    lifted: str = "absent"
+    lifted: str = LIFTED_ABSENT
 
     @property
     def label(self) -> str:
@@ -88,17 +99,6 @@ class Hypothesis:
         if self.grid == (None,):
             return 0
         return len(self.grid[0]) if isinstance(self.grid[0], tuple) else 1
-
-
-#: :attr:`Hypothesis.lifted`: the effect needs ground contact or a moving chassis (rolling resistance, a
-#: tyre's slip, an incline, a payload): absent on lifted wheels.
-LIFTED_ABSENT = "absent"
-#: :attr:`Hypothesis.lifted`: the effect acts through the drives or the wheel joints, and its columns give
-#: the lifted rows (a delay, a torque constant, wheel-joint friction).
-LIFTED_MODELLED = "modelled"
-#: :attr:`Hypothesis.lifted`: the effect acts on lifted wheels, but its columns are built for the
-#: vehicle on its wheels (a backlash's transients through the mode's dynamics).
-LIFTED_UNMODELLED = "unmodelled"
 
 
 def columns_on(h: Hypothesis, ch: ChannelData, nonlinear) -> np.ndarray | None:
