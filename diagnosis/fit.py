@@ -114,11 +114,8 @@ def solve(problem: Problem, model: IdentificationResult, h: Hypothesis | None, n
     if q and not any_effect:
         return None
     b = np.concatenate(blocks_b + [block.prior_rhs])
-    if q:
-        E = np.vstack(blocks_E + [np.zeros((len(block.prior_rhs), q))])
-        x, rss, theta_cov_scaled, scale_e = _solve_beside(block, E, b)
-    else:
-        x, rss, theta_cov_scaled, scale_e = _solve_beside(block, None, b)
+    E = np.vstack(blocks_E + [np.zeros((len(block.prior_rhs), q))]) if q else None
+    x, rss, theta_cov_scaled, scale_e = _solve_beside(block, E, b)
     n_eff = sum(len(blk) / problem.correlation_rows(i, lag) for blk, i in zip(blocks_b, block.used))
     dof = max(n_eff - n_cols, 1.0)
     s2 = max(rss / dof, 1.0)

@@ -16,16 +16,10 @@ COMMUNICATION_CYCLE_PERIOD = 0x1006         # µs
 ERROR_REGISTER = 0x1001
 PRE_DEFINED_ERROR_FIELD = 0x1003
 CONSUMER_HEARTBEAT_TIME = 0x1016
-COMMUNICATION_CYCLE_PERIOD = 0x1006
 SYNC_COUNTER_OVERFLOW = 0x1019       # 0: SYNC without data; 2…240: a 1-byte counter up to it
 #: Largest synchronous counter overflow value 0x1019 (CiA 301 §7.5.2.20; 1 and 241…255 are reserved).
 MAX_SYNC_COUNTER = 240
 
-
-def valid_sync_counter(value: int) -> bool:
-    """Whether ``value`` is a synchronous counter overflow value 0x1019 CiA 301 allows: 0 (no counter)
-    or 2…:data:`MAX_SYNC_COUNTER`."""
-    return value == 0 or 2 <= value <= MAX_SYNC_COUNTER
 PRODUCER_HEARTBEAT_TIME = 0x1017
 
 # --- objects: CiA 402 drive profile ------------------------------------------------------------------
@@ -166,3 +160,9 @@ def supported_mode_bit(mode: int) -> int:
     if not 1 <= mode <= 10:
         raise ValueError(f"mode {mode} has no bit in 0x6502")
     return 1 << (mode - 1)
+
+
+def valid_sync_counter(value: int) -> bool:
+    """Whether ``value`` is a synchronous counter overflow value 0x1019 CiA 301 allows: 0 (no counter)
+    or 2…:data:`MAX_SYNC_COUNTER`."""
+    return value == 0 or 2 <= value <= MAX_SYNC_COUNTER

@@ -139,12 +139,9 @@ def step_blocks(st: StepSignals, sheet: DataSheet, coordinates: tuple[str, ...] 
     alpha_v = kinematics.alpha_v_from_alpha(alpha, g) if st.k == 2 else None
     q = st.q.copy()
     q[:, 3:5] = alpha
-    theta = dynamics.reduced_regressor(st.k, q, st.qd, st.qdd, g, eps, alpha_v=alpha_v)
-    coulomb = dynamics.reduced_regressor(st.k, q, st.qd_coulomb, np.zeros_like(st.qdd), g, eps,
-                                         alpha_v=alpha_v)[:, :, COULOMB_COLUMNS]
-    n, n_k, n_c = coulomb.shape
-    theta[:, :, COULOMB_COLUMNS] = filtering.zero_phase_lowpass(
-        coulomb.reshape(n, n_k * n_c), st.cycle_time, st.omega_g).reshape(n, n_k, n_c)
+    theta = _coulomb_filtered(
+        dynamics.reduced_regressor(st.k, q, st.qd, st.qdd, g, eps, alpha_v=alpha_v),
+        dynamics.reduced_regressor(st.k, q, st.qd_coulomb, np.zeros_like(st.qdd), g, eps, alpha_v=alpha_v), st)
     tau = dynamics.reduced_input(st.k, q, st.motor_torque, g, d.i_G, alpha_v=alpha_v)
     sdot = kinematics.sdot_from_qdot(st.k, alpha, st.qd, g, alpha_v=alpha_v)
     names = MODE_COORDINATES[st.k]
@@ -155,6 +152,17 @@ def step_blocks(st: StepSignals, sheet: DataSheet, coordinates: tuple[str, ...] 
         blocks.append(RegressorBlock(theta[:, j, :], tau[:, j], sdot[:, j], f"{st.step}/{name}"))
     return blocks
 
+
+def _coulomb_filtered(theta: np.ndarray, coulomb: np.ndarray, st: StepSignals) -> np.ndarray:
+    """``theta`` (N, n, 11) with its Coulomb columns taken from ``coulomb`` (the same rows at the Coulomb
+    cutoff's velocities) low-passed at ω_g, as the other columns' signals are (parallel filtering)."""
+    part = coulomb[:, :, COULOMB_COLUMNS]
+    n, n_k, n_c = part.shape
+    theta[:, :, COULOMB_COLUMNS] = filtering.zero_phase_lowpass(
+        part.reshape(n, n_k * n_c), st.cycle_time, st.omega_g).reshape(n, n_k, n_c)
+    return theta
+
+
 def lifted_blocks(st: StepSignals, sheet: DataSheet, eps: float = dynamics.EPS) -> list[RegressorBlock]:
     """Rows Θ and Bu (15)–(17) of the lifted vehicle's wheels, one block per wheel (order fl, rl, fr, rr):
     with the chassis at rest and no ground contact each wheel is its own coordinate (H selects β_i),
@@ -164,14 +172,13 @@ def lifted_blocks(st: StepSignals, sheet: DataSheet, eps: float = dynamics.EPS) 
     Args:
         st: the lifted run's generalized signals (:func:`generalized_signals` with ``lifted=True``).
         sheet: the data sheet (i_G)."""
-    theta = dynamics.regressor(st.q, st.qd, st.qdd)[:, 5:9, :]
-    coulomb = dynamics.regressor(st.q, st.qd_coulomb, np.zeros_like(st.qdd), eps=eps)[:, 5:9, COULOMB_COLUMNS]
-    n, n_w, n_c = coulomb.shape
-    theta[:, :, COULOMB_COLUMNS] = filtering.zero_phase_lowpass(
-        coulomb.reshape(n, n_w * n_c), st.cycle_time, st.omega_g).reshape(n, n_w, n_c)
+    rows = dynamics.regressor(st.q, st.qd, st.qdd, eps=eps)[:, 5:9, :]
+    coulomb = dynamics.regressor(st.q, st.qd_coulomb, np.zeros_like(st.qdd), eps=eps)[:, 5:9, :]
+    theta = _coulomb_filtered(rows, coulomb, st)
     tau = sheet.drive.i_G * st.motor_torque
     return [RegressorBlock(theta[:, i, :], tau[:, i], st.qd[:, 5 + i], f"{st.step}/beta_{wheel}")
             for i, wheel in enumerate(WHEELS)]
+
 
 #: The coordinate each identification step excites (section 6.2); the held side of a steering step
 #: stands still in stiction and contributes no rows.

@@ -19,7 +19,7 @@ from pathlib import Path
 from canopen import objectdictionary as od
 
 from .dbc import enabled_pdos, reset_values, sync_counter
-from ..cia import SYNC_COUNTER_OVERFLOW
+from ..cia import COMMUNICATION_CYCLE_PERIOD, SYNC_COUNTER_OVERFLOW
 from ..layout import DRIVE_EDS, DRIVE_NODE_IDS, ENCODER_EDS, ENCODER_NODE_IDS
 from ..pdo_codec import build_codec
 
@@ -76,7 +76,7 @@ def bus_load(bitrate: int, cycle_time: float | None = None, files: dict[int, Pat
         values = reset_values(dictionary)
         counters.append(values.get((SYNC_COUNTER_OVERFLOW, 0), 0))
         if not result.cycle_time:
-            result.cycle_time = values.get((0x1006, 0), 0) * 1e-6
+            result.cycle_time = values.get((COMMUNICATION_CYCLE_PERIOD, 0), 0) * 1e-6
         for receive, n, comm, cob_id, count in enabled_pdos(dictionary, values):
             codec = build_codec(dictionary, [values[(comm + 0x200, s)] for s in range(1, count + 1)], receive)
             trans = values.get((comm, 2), 255)
