@@ -127,8 +127,11 @@ def body_inertias(description: VehicleDescription, plan: BuildPlan | None = None
     if chassis_izz <= 0:
         raise DescriptionError(f"{description.source}: C_ch too small for the body masses")
     length, width, height = g.l + 0.2, g.b, bd.chassis_height
-    ixx = chassis_mass / 12 * (width**2 + height**2)
-    iyy = chassis_mass / 12 * (length**2 + height**2)
+    ixx = chassis_mass / 12 * (width * width + height * height)   # (a float's ** raises on overflow)
+    iyy = chassis_mass / 12 * (length * length + height * height)
+    if not (math.isfinite(ixx) and math.isfinite(iyy)):
+        raise DescriptionError(f"{description.source}: body.chassis_height = {height} m gives the chassis a "
+                               f"roll or pitch inertia that is not finite")
     scale = max(1.0, 1.05 * chassis_izz / (ixx + iyy))  # triangle inequality I_xx + I_yy >= I_zz
     return BodyInertias(
         chassis_mass=chassis_mass,
